@@ -141,9 +141,11 @@ class Params:
     Attributes
     ----------
     t_canny : float
-        Canny threshold on the gradient magnitude (0-255 scale).
+        Canny high threshold on the Sobel gradient magnitude of 2.55 * Lab
+        (the scale of ``cv2.Canny`` on 8-bit images; low = high / 2).
     t_super : float
-        Superpixel colour-variance threshold (Lab units).
+        Superpixel threshold on a cell's RMS colour deviation,
+        sqrt(trace of the Lab covariance) in 2.55 * Lab units (0-255 scale).
     kernel_size : int
         Features per TPS kernel after packing (K).
     overlap : float

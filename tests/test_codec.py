@@ -1,0 +1,727 @@
+"""The .tpsv container: exact round trips, determinism, and a hostile decoder input.
+
+Model builders live here (not in conftest.py) so that this file stands alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import time
+import zlib
+
+import msgpack
+import numpy as np
+import pytest
+import zstandard
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tpsv import codec
+from tpsv.codec import layout, quant, sections
+from tpsv.errors import TpsvError, TpsvFormatError
+from tpsv.model import CURVILINEAR, Features, Model, Params, Patch, Region
+
+# ------------------------------------------------------------------ builders
+
+
+def grid_ctrl(m: int, n: int, x0: float, y0: float, w: float, h: float) -> np.ndarray:
+    """Control vectors of an axis-aligned ``w x h`` rectangle patch."""
+    c = np.zeros((m, n, 4, 2))
+    s = np.linspace(0.0, 1.0, m)[:, None]
+    t = np.linspace(0.0, 1.0, n)[None, :]
+    c[..., 0, 0] = x0 + s * w + 0.0 * t
+    c[..., 0, 1] = y0 + t * h + 0.0 * s
+    c[..., 1, 0] = w / (m - 1)
+    c[..., 2, 1] = h / (n - 1)
+    c[..., 3, :] = 0.013  # a twist that is not on the 1/16 px grid
+    return c
+
+
+def square(x0: float, y0: float, size: float) -> np.ndarray:
+    return np.array([[x0, y0], [x0 + size, y0], [x0 + size, y0 + size], [x0, y0 + size]])
+
+
+def hand_model() -> Model:
+    """Three regions: one with a hole, one with a single feature, one with none.
+
+    Pairs: adjacent halves, and one pair across regions 0 and 1.
+    """
+    regions = [
+        Region(
+            label=3,
+            outline=[square(0, 0, 20), square(5.25, 5.5, 4)[::-1].copy()],
+            patch=Patch(grid_ctrl(4, 3, -0.5, -0.5, 21, 21)),
+        ),
+        Region(label=9, outline=[square(20, 0, 10) + 0.0371], patch=Patch(grid_ctrl(2, 2, 20, 0, 10, 10))),
+        Region(label=-4, outline=[np.array([[20.0, 10], [30, 10], [25, 20.5]])],
+               patch=Patch(grid_ctrl(3, 5, 20, 10, 10, 10.5))),
+    ]
+    st_ = np.array([[0.1, 0.2], [0.1003, 0.21], [0.5, 0.5], [0.77777, 0.123456],
+                    [0.99, 0.0001], [1.0, 0.0]])
+    lab = np.array([[50.2, -3.4, 7.6], [12.0, 100.3, -127.9], [99.9, 0.49, 0.51],
+                    [0.0, -128.0, 127.0], [33.3, 5.5, -5.5], [100.0, 140.0, -200.0]], np.float32)
+    features = Features(
+        region=np.array([0, 0, 0, 0, 0, 1], np.int32),
+        st=st_,
+        lab=lab,
+        kind=np.array([1, 1, 0, 0, 1, 1], np.uint8),
+        pair=np.array([1, 0, -1, -1, 5, 4], np.int32),
+    )
+    params = Params(t_canny=37.5, t_super=12.25, kernel_size=48, overlap=0.25, smoothing=1e-6,
+                    extra={"seed": 7, "search": True, "source": "chelsea.png", "psnr": 27.125})
+    return Model(width=31, height=21, regions=regions, features=features, params=params)
+
+
+def tiny_model() -> Model:
+    """One region, two paired features: the small file the corruption tests use."""
+    region = Region(label=0, outline=[square(0, 0, 4)], patch=Patch(grid_ctrl(2, 2, 0, 0, 4, 4)))
+    features = Features(
+        region=np.zeros(2, np.int32), st=np.array([[0.25, 0.5], [0.75, 0.5]]),
+        lab=np.array([[20, 1, 2], [80, -1, -2]], np.float32),
+        kind=np.ones(2, np.uint8), pair=np.array([1, 0], np.int32),
+    )
+    return Model(width=4, height=4, regions=[region], features=features)
+
+
+def no_features_model() -> Model:
+    m = hand_model()
+    return dataclasses.replace(m, features=Features.empty())
+
+
+def no_regions_model() -> Model:
+    return Model(width=1, height=1, regions=[], features=Features.empty())
+
+
+def edge_model(n_pairs: int = 2000, seed: int = 0) -> Model:
+    """Realistic-ish features: pairs across a wavy edge in raster order, then a
+    grid of gradation features, colours varying smoothly with noise."""
+    rng = np.random.default_rng(seed)
+    w = h = 256
+    y = np.linspace(2, h - 2, n_pairs)
+    x = 128 + 60 * np.sin(y / 30)
+    g = np.stack([np.ones_like(y), -2 * np.cos(y / 30)], 1)
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    xy = np.empty((2 * n_pairs, 2))
+    xy[0::2] = np.stack([x, y], 1) - 0.5 * g
+    xy[1::2] = np.stack([x, y], 1) + 0.5 * g
+    lab = np.empty((2 * n_pairs, 3))
+    lab[0::2] = [30, 10, -20]
+    lab[1::2] = [70, -5, 30]
+    lab += rng.normal(0, 2, lab.shape) + (y.repeat(2) / 10)[:, None]
+    gy, gx = np.mgrid[4:h:8, 4:w:8]
+    gxy = np.stack([gx.ravel(), gy.ravel()], 1) + 0.5
+    glab = np.stack([50 + gx.ravel() / 8, gy.ravel() / 10 - 10, 5 + 0 * gx.ravel()], 1)
+    glab = glab + rng.normal(0, 1, glab.shape)
+    n = 2 * n_pairs + gxy.shape[0]
+    features = Features(
+        region=np.zeros(n, np.int32),
+        st=np.concatenate([xy, gxy]) / [w, h],
+        lab=np.concatenate([lab, glab]).astype(np.float32),
+        kind=np.r_[np.ones(2 * n_pairs), np.zeros(gxy.shape[0])].astype(np.uint8),
+        pair=np.r_[np.arange(2 * n_pairs) ^ 1, -np.ones(gxy.shape[0])].astype(np.int32),
+    )
+    region = Region(0, [square(0, 0, 256)], Patch(grid_ctrl(8, 8, 0, 0, w, h)))
+    return Model(width=w, height=h, regions=[region], features=features)
+
+
+# ------------------------------------------------------------------ comparison
+
+
+def assert_arrays_identical(a: np.ndarray, b: np.ndarray, what: str) -> None:
+    assert a.dtype == b.dtype, f"{what}: dtype {a.dtype} != {b.dtype}"
+    assert a.shape == b.shape, f"{what}: shape {a.shape} != {b.shape}"
+    assert a.tobytes() == b.tobytes(), f"{what}: values differ"
+
+
+def assert_models_identical(a: Model, b: Model) -> None:
+    """Field by field, arrays bit-exact (dtype, shape and bytes)."""
+    assert (a.width, a.height) == (b.width, b.height)
+    assert a.params == b.params
+    assert list(a.params.extra) == list(b.params.extra)
+    assert len(a.regions) == len(b.regions)
+    for r, (ra, rb) in enumerate(zip(a.regions, b.regions)):
+        assert ra.label == rb.label and type(ra.label) is type(rb.label)
+        assert len(ra.outline) == len(rb.outline)
+        for k, (pa, pb) in enumerate(zip(ra.outline, rb.outline)):
+            assert_arrays_identical(pa, pb, f"region {r} polygon {k}")
+        assert_arrays_identical(ra.patch.ctrl, rb.patch.ctrl, f"region {r} ctrl")
+    for name in ("region", "st", "lab", "kind", "pair"):
+        assert_arrays_identical(getattr(a.features, name), getattr(b.features, name), name)
+
+
+# ------------------------------------------------------------------ file surgery
+
+
+def reseal(data: bytes | bytearray) -> bytes:
+    """Recompute both checksums, so that validation (not a CRC) must catch a patch."""
+    out = bytearray(data)
+    struct.pack_into("<I", out, 64, zlib.crc32(bytes(out[layout.HEADER_SIZE:])))
+    struct.pack_into("<I", out, 68, zlib.crc32(bytes(out[:68])))
+    return bytes(out)
+
+
+def patch_header(data: bytes, **fields) -> bytes:
+    """Overwrite named header fields (see layout.Header), then reseal."""
+    offsets = {"version": (8, "<H"), "flags": (10, "<H"), "width": (12, "<I"),
+               "height": (16, "<I"), "regions": (20, "<I"), "polygons": (24, "<I"),
+               "vertices": (28, "<I"), "ctrl_points": (32, "<I"), "features": (36, "<I")}
+    for i, name in enumerate(layout.SECTIONS):
+        offsets[f"{name}_comp"] = (40 + 8 * i, "<I")
+        offsets[f"{name}_raw"] = (44 + 8 * i, "<I")
+    out = bytearray(data)
+    for name, value in fields.items():
+        off, fmt = offsets[name]
+        struct.pack_into(fmt, out, off, value)
+    return reseal(out)
+
+
+def raw_sections(data: bytes) -> list[bytes]:
+    """The three decompressed sections of a valid file."""
+    h = layout.parse_header(data)
+    out, start = [], layout.HEADER_SIZE
+    for size in h.compressed:
+        out.append(zstandard.ZstdDecompressor().decompress(data[start:start + size]))
+        start += size
+    return out
+
+
+def assemble(data: bytes, raws: dict[str, bytes] | None = None,
+             frames: dict[str, bytes] | None = None, **fields) -> bytes:
+    """A copy of ``data`` with some sections replaced (raw, or as zstd frames),
+    sizes and checksums made consistent, header fields optionally patched."""
+    raws = dict(zip(layout.SECTIONS, raw_sections(data)), **(raws or {}))
+    cctx = zstandard.ZstdCompressor(level=3, write_content_size=True)
+    comps = {k: cctx.compress(v) for k, v in raws.items()}
+    comps.update(frames or {})
+    out = bytes(data[:layout.HEADER_SIZE]) + b"".join(comps[k] for k in layout.SECTIONS)
+    sizes = {f"{k}_comp": len(comps[k]) for k in layout.SECTIONS}
+    sizes.update({f"{k}_raw": len(raws[k]) for k in layout.SECTIONS})
+    sizes.update(fields)
+    return patch_header(out, **sizes)
+
+
+def with_quantized(model: Model, **changes) -> bytes:
+    """A file whose sections encode ``from_model(model)`` with fields replaced,
+    bypassing the encoder's validation (the decoder must catch it)."""
+    data = codec.encode(model)
+    q = dataclasses.replace(quant.from_model(model), **changes)
+    raws = {"params": sections.pack_params(q), "regions": sections.pack_regions(q),
+            "features": sections.pack_features(q)}
+    counts = dict(regions=len(q.labels), polygons=int(q.vert_counts.size),
+                  vertices=int(q.xy.shape[0]), ctrl_points=int(q.ctrl.size // 8),
+                  features=int(q.st.shape[0]))
+    return assemble(data, raws, **counts)
+
+
+def reject(data: bytes, match: str | None = None) -> str:
+    with pytest.raises(TpsvFormatError) as info:
+        codec.decode(data)
+    msg = str(info.value)
+    assert "\n" not in msg and msg
+    if match is not None:
+        assert match in msg, msg
+    return msg
+
+
+# ------------------------------------------------------------------ round trips
+
+MODELS = [hand_model, tiny_model, no_features_model, no_regions_model, edge_model]
+
+
+@pytest.mark.parametrize("make", MODELS, ids=lambda f: f.__name__)
+def test_round_trip_is_exactly_quantize(make):
+    m = make()
+    assert_models_identical(codec.decode(codec.encode(m)), codec.quantize(m))
+
+
+@pytest.mark.parametrize("make", MODELS, ids=lambda f: f.__name__)
+def test_quantize_is_idempotent_and_encode_deterministic(make):
+    m = make()
+    q = codec.quantize(m)
+    assert_models_identical(codec.quantize(q), q)
+    data = codec.encode(m)
+    assert codec.encode(m) == data
+    assert codec.encode(q) == data
+
+
+def test_quantisation_error_bounds():
+    m = hand_model()
+    q = codec.quantize(m)
+    for ra, rq in zip(m.regions, q.regions):
+        for pa, pq in zip(ra.outline, rq.outline):
+            assert np.abs(pa - pq).max() <= 1 / 16
+        assert np.abs(ra.patch.ctrl - rq.patch.ctrl).max() <= 1 / 32
+    steps = 2 ** quant.st_bits_for(m.width, m.height) - 1
+    assert np.abs(m.features.st - q.features.st).max() <= 0.5 / steps + 1e-12
+    lab, lq = m.features.lab.astype(np.float64), q.features.lab.astype(np.float64)
+    inside = (np.abs(lab[:, 1:]) <= 127).all(axis=1)
+    assert np.abs(lab[:, 0] - lq[:, 0]).max() <= 50 / 255 + 1e-5
+    assert np.abs(lab[inside, 1:] - lq[inside, 1:]).max() <= 0.5 + 1e-5
+    # Out-of-gamut a, b are clamped to [-128, 127].
+    assert lq[-1, 1] == 127 and lq[-1, 2] == -128
+    assert q.features.st.min() >= 0 and q.features.st.max() <= 1
+
+
+def test_st_bits_follow_image_size():
+    assert quant.st_bits_for(1, 1) == 8
+    assert quant.st_bits_for(512, 300) == 13  # 512 / 8191 ~ 1/16 px
+    assert quant.st_bits_for(1920, 1080) == 15
+    assert quant.st_bits_for(65535, 1) == 16
+
+
+def test_extra_order_does_not_change_bytes():
+    a, b = hand_model(), hand_model()
+    b.params.extra = dict(reversed(list(a.params.extra.items())))
+    assert codec.encode(a) == codec.encode(b)
+    assert list(codec.decode(codec.encode(b)).params.extra) == sorted(a.params.extra)
+
+
+def test_numpy_scalars_in_params_become_plain():
+    m = tiny_model()
+    m.params = Params(t_canny=np.float32(3.5), kernel_size=np.int64(32),
+                      extra={"n": np.int16(-3), "x": np.float64(0.5), "b": np.bool_(True)})
+    p = codec.decode(codec.encode(m)).params
+    assert p == codec.quantize(m).params
+    assert type(p.t_canny) is float and type(p.kernel_size) is int
+    assert [type(p.extra[k]) for k in ("b", "n", "x")] == [bool, int, float]
+
+
+def test_params_table_covers_every_params_field():
+    fields = {f.name for f in dataclasses.fields(Params)} - {"extra"}
+    assert fields == set(quant.PARAM_FIELDS)
+
+
+def test_section_sizes_break_down_the_file():
+    data = codec.encode(hand_model())
+    sizes = codec.section_sizes(data)
+    assert list(sizes) == ["header", "params", "regions", "features"]
+    assert sizes["header"] == codec.HEADER_SIZE == 72
+    assert sum(sizes.values()) == len(data)
+
+
+def test_file_starts_with_magic_and_version():
+    data = codec.encode(tiny_model())
+    assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 1
+
+
+def test_compact_features():
+    """Size guard (not speed): realistic features cost under 5 bytes each."""
+    m = edge_model()
+    data = codec.encode(m)
+    per_feature = codec.section_sizes(data)["features"] / len(m.features)
+    assert per_feature < 5.0, per_feature
+
+
+# ------------------------------------------------------------------ property tests
+
+
+@st.composite
+def models(draw) -> Model:
+    """Valid models: small, but every structure (holes, empty regions, pairs
+    across regions, out-of-range S, T and Lab to be clamped) may occur."""
+    width = draw(st.integers(1, 400))
+    height = draw(st.integers(1, 400))
+    coord = st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False)
+    regions = []
+    for _ in range(draw(st.integers(0, 4))):
+        polys = []
+        for _ in range(draw(st.integers(1, 3))):
+            k = draw(st.integers(3, 7))
+            polys.append(np.array(draw(st.lists(coord, min_size=2 * k, max_size=2 * k))).reshape(k, 2))
+        m, n = draw(st.integers(2, 5)), draw(st.integers(2, 5))
+        ctrl = np.array(draw(st.lists(coord, min_size=m * n * 8, max_size=m * n * 8))).reshape(m, n, 4, 2)
+        label = draw(st.integers(-(2**63), 2**63 - 1))
+        regions.append(Region(label=label, outline=polys, patch=Patch(ctrl)))
+    n_feat = draw(st.integers(0, 40)) if regions else 0
+    region = np.sort(np.array(draw(st.lists(st.integers(0, max(len(regions) - 1, 0)),
+                                            min_size=n_feat, max_size=n_feat)), np.int32))
+    unit = st.floats(-0.1, 1.1, allow_nan=False)
+    st_ = np.array(draw(st.lists(unit, min_size=2 * n_feat, max_size=2 * n_feat))).reshape(n_feat, 2)
+    lab = np.array(draw(st.lists(st.floats(-300, 300, allow_nan=False, width=32),
+                                 min_size=3 * n_feat, max_size=3 * n_feat)), np.float32).reshape(n_feat, 3)
+    order = draw(st.permutations(range(n_feat))) if n_feat else []
+    n_pairs = draw(st.integers(0, n_feat // 2))
+    pair = np.full(n_feat, -1, np.int32)
+    for i in range(n_pairs):
+        a, b = order[2 * i], order[2 * i + 1]
+        pair[a], pair[b] = b, a
+    kind = np.where(pair >= 0, CURVILINEAR,
+                    np.array(draw(st.lists(st.integers(0, 1), min_size=n_feat, max_size=n_feat)),
+                             dtype=np.int64).reshape(n_feat)).astype(np.uint8)
+    extra_value = st.one_of(st.booleans(), st.integers(-(2**63), 2**63 - 1),
+                            st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=20))
+    extra = draw(st.dictionaries(st.text(min_size=1, max_size=10), extra_value, max_size=4))
+    params = Params(
+        t_canny=draw(st.floats(0, 1e3)), t_super=draw(st.floats(0, 1e3)),
+        kernel_size=draw(st.integers(1, 4096)), overlap=draw(st.floats(1e-6, 0.5)),
+        smoothing=draw(st.floats(0, 1)), extra=extra,
+    )
+    features = Features(region=region, st=st_, lab=lab, kind=kind, pair=pair)
+    return Model(width=width, height=height, regions=regions, features=features, params=params)
+
+
+PROPERTY = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@PROPERTY
+@given(models())
+def test_property_round_trip(m):
+    data = codec.encode(m)
+    q = codec.quantize(m)
+    assert_models_identical(codec.decode(data), q)
+    assert_models_identical(codec.quantize(q), q)
+    assert codec.encode(q) == data
+    assert sum(codec.section_sizes(data).values()) == len(data)
+
+
+@PROPERTY
+@given(st.binary(max_size=200))
+def test_property_garbage_is_rejected(blob):
+    reject(blob)
+    reject(codec.MAGIC + blob)
+    reject(codec.MAGIC + b"\x01\x00" + blob)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_property_mutated_sections_fail_cleanly(data):
+    """Mutate the *decompressed* sections and reseal: the parsers and validators
+    (not the checksum) must answer, with a valid model or TpsvFormatError."""
+    base = codec.encode(hand_model())
+    raws = dict(zip(layout.SECTIONS, raw_sections(base)))
+    name = data.draw(st.sampled_from(layout.SECTIONS))
+    raw = bytearray(raws[name])
+    for _ in range(data.draw(st.integers(1, 4))):
+        pos = data.draw(st.integers(0, len(raw) - 1))
+        raw[pos] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):
+        cut = data.draw(st.integers(0, len(raw)))
+        raw = raw[:cut]
+    try:
+        model = codec.decode(assemble(base, {name: bytes(raw)}))
+    except TpsvFormatError:
+        return
+    # Whatever decodes is a valid model: it encodes again.
+    assert isinstance(model, Model)
+    assert isinstance(codec.decode(codec.encode(model)), Model)
+
+
+# ------------------------------------------------------------------ corruption
+
+
+def test_truncated_at_every_length():
+    data = codec.encode(tiny_model())
+    for n in range(len(data)):
+        msg = reject(data[:n])
+        if 0 < n < len(data):
+            assert "truncated" in msg, (n, msg)
+
+
+def test_every_flipped_byte_is_rejected():
+    data = codec.encode(tiny_model())
+    for i in range(len(data)):
+        for mask in (0x01, 0x80, 0xFF):
+            bad = bytearray(data)
+            bad[i] ^= mask
+            reject(bytes(bad))
+
+
+def test_flips_in_a_larger_file_sampled():
+    data = codec.encode(hand_model())
+    rng = np.random.default_rng(1234)
+    for i in rng.choice(len(data), size=min(len(data), 200), replace=False):
+        bad = bytearray(data)
+        bad[i] ^= 1 << int(rng.integers(8))
+        reject(bytes(bad))
+
+
+def test_trailing_data_rejected():
+    reject(codec.encode(tiny_model()) + b"\x00", "trailing data")
+
+
+def test_empty_and_wrong_magic():
+    reject(b"", "empty file")
+    reject(b"\x89PNG\r\n\x1a\n" + bytes(100), "bad magic")
+    reject(b"{}", "bad magic")
+    data = codec.encode(tiny_model())
+    reject(b"X" + data[1:], "bad magic")
+
+
+def test_text_mode_mangling_is_named():
+    data = codec.encode(tiny_model())
+    reject(data.replace(b"\r\n", b"\n", 1), "text mode")
+    reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
+
+
+@pytest.mark.parametrize("version", [2, 7, 65535])
+def test_future_version_rejected(version):
+    data = patch_header(codec.encode(tiny_model()), version=version)
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 1)")
+    # Even a short file of a future version gets the version message.
+    reject(data[:12], f"unsupported format version {version}")
+
+
+def test_version_zero_and_flags_rejected():
+    data = codec.encode(tiny_model())
+    reject(patch_header(data, version=0), "unsupported format version 0")
+    reject(patch_header(data, flags=4), "unsupported flags 0x0004")
+
+
+def test_header_checksum():
+    data = bytearray(codec.encode(tiny_model()))
+    data[12] ^= 1
+    reject(bytes(data), "header checksum")
+
+
+def test_payload_checksum():
+    data = bytearray(codec.encode(tiny_model()))
+    data[-1] ^= 1
+    reject(bytes(data), "checksum mismatch")
+
+
+@pytest.mark.parametrize("fields, match", [
+    ({"width": 0}, "width 0"),
+    ({"height": 70000}, "height 70000"),
+    ({"width": 65535, "height": 65535}, "exceeds 268435456 pixels"),
+    ({"regions": 65536}, "65536 regions exceed"),
+    ({"polygons": 2**20 + 1}, "polygons exceed"),
+    ({"vertices": 2**26 + 1}, "vertices exceed"),
+    ({"ctrl_points": 2**22 + 1}, "control points exceed"),
+    ({"features": 2**26 + 1}, "features exceed"),
+    ({"features": 2**32 - 1}, "features exceed"),
+    ({"regions": 2}, "polygons for 2 regions"),
+    ({"vertices": 2}, "2 vertices for 1 polygons"),
+    ({"vertices": 5}, "4 vertices, header says 5"),
+    ({"ctrl_points": 3}, "control points for 1 regions"),
+    ({"features": 3}, "features"),
+    ({"regions": 0, "polygons": 0, "vertices": 0, "ctrl_points": 0}, "2 features but no regions"),
+    ({"features_raw": 2**31}, "exceeds the bound"),
+    ({"params_raw": 2**20 + 1}, "exceeds the bound"),
+    ({"features_comp": 0}, "empty"),
+    ({"features_comp": 2**31}, "truncated file"),
+])
+def test_header_counts_validated_not_checksummed(fields, match):
+    reject(patch_header(codec.encode(tiny_model()), **fields), match)
+
+
+def test_zstd_bomb_rejected_quickly():
+    data = codec.encode(tiny_model())
+    bomb = zstandard.ZstdCompressor(level=1, write_content_size=True).compress(bytes(2**26))
+    assert len(bomb) < 10_000
+    t0 = time.perf_counter()
+    # Declared as huge: over the bound the header counts allow.
+    reject(assemble(data, frames={"features": bomb}, features_raw=2**26), "exceeds the bound")
+    # Declared small, but the frame says huge: refused before inflating.
+    reject(assemble(data, frames={"features": bomb}), "zstd frame holds 67108864 bytes")
+    # Counts large enough for the size, but the stored bytes are too few.
+    huge = assemble(data, frames={"features": bomb}, features=2**23, features_raw=2**26)
+    reject(huge, "over 1024 times")
+    assert time.perf_counter() - t0 < 2.0
+
+
+def test_zstd_frame_problems():
+    data = codec.encode(tiny_model())
+    raw = raw_sections(data)[2]
+    stream = zstandard.ZstdCompressor().compressobj()
+    no_size = stream.compress(raw) + stream.flush()
+    reject(assemble(data, frames={"features": no_size}, features_raw=len(raw)), "does not state its size")
+    frame = zstandard.ZstdCompressor(write_content_size=True).compress(raw)
+    reject(assemble(data, frames={"features": frame + frame}, features_raw=len(raw)), "bad zstd data")
+    reject(assemble(data, frames={"features": frame[:-3]}, features_raw=len(raw)), "bad zstd data")
+    skippable = b"\x50\x2a\x4d\x18" + struct.pack("<I", 4) + b"abcd"
+    reject(assemble(data, frames={"features": skippable}, features_raw=len(raw)), "not a zstd frame")
+    reject(assemble(data, frames={"features": b"\x28\xb5"}, features_raw=len(raw)), "not a zstd frame")
+
+
+# ------------------------------------------------------------------ section contents
+
+
+def pack(obj) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def test_bad_msgpack_rejected():
+    data = codec.encode(tiny_model())
+    reject(assemble(data, {"params": b"\xc1"}), "bad msgpack")
+    reject(assemble(data, {"params": b""}), "bad msgpack")
+    reject(assemble(data, {"params": pack({}) + b"\x00"}), "bad msgpack")
+    reject(assemble(data, {"params": b"\x91" * 5000 + b"\xc0"}), "section params")
+    reject(assemble(data, {"params": pack([1, 2])}), "expected a map")
+    reject(assemble(data, {"params": b"\xd6\xff\x00\x00\x00\x00"}), "section params")  # ext
+    dup = b"\x82" + pack("t_canny") + pack(1.0) + pack("t_canny") + pack(2.0)
+    reject(assemble(data, {"params": dup}), "duplicate map key")
+    reject(assemble(data, {"params": pack({1: 2})}), "section params")
+
+
+def test_params_validated():
+    data = codec.encode(tiny_model())
+    base = msgpack.unpackb(raw_sections(data)[0])
+    cases = [
+        ({"t_canny": float("nan")}, "not finite"),
+        ({"t_canny": 40}, "must be float"),
+        ({"kernel_size": 64.0}, "must be int"),
+        ({"kernel_size": True}, "must be int"),
+        ({"kernel_size": 0}, "kernel_size = 0"),
+        ({"overlap": 0.0}, "overlap = 0.0 not in (0.0, 0.5]"),
+        ({"smoothing": -1.0}, "smoothing"),
+        ({"extra": {"x": [1]}}, "unsupported type list"),
+        ({"extra": {"x": float("inf")}}, "not finite"),
+        ({"extra": {"": 1}}, "extra key"),
+        ({"extra": {"x": 2**64 - 1}}, "64-bit"),
+        ({"extra": [1]}, "extra is not a map"),
+        ({"extra": {b"k": 1}}, "not a str"),
+        ({"unknown": 1}, "unknown key 'unknown'"),
+    ]
+    for change, match in cases:
+        obj = {**base, **change}
+        reject(assemble(data, {"params": pack(obj)}), match)
+    obj = dict(base)
+    del obj["overlap"]
+    reject(assemble(data, {"params": pack(obj)}), "missing key 'overlap'")
+
+
+def test_region_section_validated():
+    data = codec.encode(tiny_model())
+    base = msgpack.unpackb(raw_sections(data)[1])
+    cases = [
+        ({"label": ["a"]}, "label"),
+        ({"label": [1, 2]}, "array of 1 ints"),
+        ({"label": [2**64 - 1]}, "64-bit integer"),
+        ({"grid": b"\x01\x01\x01"}, "grid has 3 bytes"),
+        ({"grid": b"\x02\x01"}, "grids hold 6 control points, header says 4"),
+        ({"polys": 5}, "polys is not a bin"),
+        ({"polys": struct.pack("<I", 2)}, "2 polygons, header says 1"),
+        ({"verts": bytes([5, 0, 0, 0])}, "5 vertices, header says 4"),
+        ({"xy": b"\x00" * 7}, "xy has 7 bytes"),
+        ({"ctrl": b""}, "ctrl has 0 bytes"),
+    ]
+    for change, match in cases:
+        reject(assemble(data, {"regions": pack({**base, **change})}), match)
+
+
+def test_grid_and_polygon_rules():
+    m = tiny_model()
+    q = quant.from_model(m)
+    # Two polygons of 2 and 4 vertices: the header totals pass, the rule does not.
+    reject(with_quantized(m, poly_counts=np.array([2]), vert_counts=np.array([2, 4]),
+                          xy=np.concatenate([q.xy[:2], q.xy])), "polygon 0 has 2 vertices (at least 3)")
+    data = with_quantized(m, grid=np.array([[1, 4]]))
+    reject(data, "control grid 1x4")
+
+
+def test_feature_section_validated():
+    m = tiny_model()
+    reject(with_quantized(m, pair=np.array([1, -1])), "pairs must be symmetric")
+    reject(with_quantized(m, kind=np.array([2, 2], np.uint8)), "kind 2")
+    reject(with_quantized(m, kind=np.array([0, 1], np.uint8)), "paired but not curvilinear")
+    reject(with_quantized(m, st=np.array([[0, 0], [9000, 0]])), "S or T beyond")
+    reject(with_quantized(m, st_bits=17), "st_bits 17")
+    reject(with_quantized(m, feature_counts=np.array([1])), "sum to 1, expected 2")
+    base = msgpack.unpackb(raw_sections(codec.encode(m))[2])
+    for change, match in [({"st_bits": 8.0}, "st_bits is not an int"),
+                          ({"pair": b"\x00" * 7}, "pair has 7 bytes"),
+                          ({"lab": "x"}, "lab is not a bin")]:
+        reject(assemble(codec.encode(m), {"features": pack({**base, **change})}), match)
+    # A pair index beyond the feature count, written directly as its code.
+    code = sections.zigzag64(np.array([5, -1]))
+    raw = pack({**base, "pair": sections.to_planes(code, 4)})
+    reject(assemble(codec.encode(m), {"features": raw}), "not in [-1, 2)")
+
+
+def test_asymmetric_pair_refused_by_encoder():
+    m = hand_model()
+    m.features.pair[0] = 4
+    with pytest.raises(ValueError, match="symmetric"):
+        codec.encode(m)
+    m = hand_model()
+    m.features.pair[2] = 2
+    with pytest.raises(ValueError, match="paired with itself"):
+        codec.encode(m)
+
+
+@pytest.mark.parametrize("mutate, match", [
+    (lambda m: setattr(m.features, "region", m.features.region[::-1].copy()), "not sorted"),
+    (lambda m: m.features.st.__setitem__((0, 0), np.nan), "non-finite"),
+    (lambda m: setattr(m.regions[0].patch, "ctrl", np.zeros((2, 2, 3, 2))), "expected (M, N, 4, 2)"),
+    (lambda m: setattr(m.regions[0].patch, "ctrl", np.zeros((1, 2, 4, 2))), "control grid 1x2"),
+    (lambda m: m.regions[0].outline.__setitem__(0, np.full((4, 2), 3e8)), "32-bit"),
+    (lambda m: setattr(m.regions[1], "outline", []), "no outline polygon"),
+    (lambda m: setattr(m, "width", 0), "width 0"),
+    (lambda m: setattr(m, "width", 2.5), "width must be an int"),
+    (lambda m: setattr(m.params, "overlap", 0.75), "overlap"),
+    (lambda m: setattr(m.params, "kernel_size", 1.5), "kernel_size must be an integer"),
+    (lambda m: m.params.extra.__setitem__("bad", [1, 2]), "only bool, int, float, str"),
+    (lambda m: setattr(m.features, "region", np.full(6, 7, np.int32)), "out of range"),
+    (lambda m: setattr(m.features, "kind", np.zeros(5, np.uint8)), "features.kind has shape"),
+])
+def test_encoder_refuses_invalid_models(mutate, match):
+    m = hand_model()
+    mutate(m)
+    with pytest.raises(ValueError, match=match.replace("(", r"\(").replace(")", r"\)")):
+        codec.encode(m)
+
+
+# ------------------------------------------------------------------ transforms
+
+
+def test_delta_zigzag_round_trips_extremes():
+    for width in (1, 2, 4):
+        bits = 8 * width
+        lo, hi = -(2 ** (bits - 1)), 2 ** (bits - 1) - 1
+        x = np.array([0, hi, lo, -1, 1, hi, hi, lo, 0, 5], np.int64)
+        for lag in (1, 2, 3):
+            codes = sections.delta_zigzag(x, width, lag)
+            back = sections.undelta_zigzag(codes, width, lag).astype(np.int64)
+            assert np.array_equal(back, x)
+    assert list(sections.delta_zigzag(np.array([0, 1, 0, -1]), 2, 1)) == [0, 2, 1, 1]
+
+
+def test_planes_round_trip():
+    x = np.array([0, 1, 2**32 - 1, 0x01020304], np.uint32)
+    buf = sections.to_planes(x, 4)
+    assert buf[:4] == bytes([0, 1, 0xFF, 0x04])  # lowest bytes first
+    assert np.array_equal(sections.from_planes(buf, 4, 4), x)
+
+
+# ------------------------------------------------------------------ files
+
+
+def test_save_and_load(tmp_path):
+    m = hand_model()
+    path = tmp_path / "m.tpsv"
+    n = codec.save(m, path)
+    assert n == path.stat().st_size
+    assert_models_identical(codec.load(path), codec.quantize(m))
+    assert_models_identical(codec.load(str(path)), codec.quantize(m))
+
+
+def test_load_errors_name_the_file(tmp_path):
+    with pytest.raises(TpsvError, match="missing.tpsv: cannot read"):
+        codec.load(tmp_path / "missing.tpsv")
+    bad = tmp_path / "bad.tpsv"
+    bad.write_bytes(b"hello")
+    with pytest.raises(TpsvFormatError, match="bad.tpsv: bad magic"):
+        codec.load(bad)
+
+
+def test_save_error_leaves_nothing(tmp_path):
+    with pytest.raises(TpsvError, match="cannot write"):
+        codec.save(tiny_model(), tmp_path / "no" / "such" / "dir.tpsv")
+    good = tmp_path / "good.tpsv"
+    codec.save(tiny_model(), good)
+    before = good.read_bytes()
+    broken = tiny_model()
+    broken.features.pair[0] = -1
+    with pytest.raises(ValueError):
+        codec.save(broken, good)
+    assert good.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.tpsv"]
+
+
+def test_limits_are_exported():
+    assert codec.MAX_FILE_BYTES == 256 * 2**20
+    assert codec.MAX_FEATURES == 2**26 and codec.MAX_REGIONS == 65535
+    assert (codec.MIN_GRID, codec.MAX_GRID) == (2, 256)
+    assert codec.MAX_PIXELS == 2**28

@@ -1,0 +1,227 @@
+"""Fixed header of a .tpsv file, and the limits a decoder enforces.
+
+Everything here is specified byte for byte in ``docs/FORMAT.md``; keep both in
+step.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass
+
+from ..errors import TpsvFormatError
+
+#: The first 8 bytes of every .tpsv file. ``\r\n`` and the trailing ``\n``
+#: catch CRLF <-> LF conversion by text-mode transfers (as in PNG); ``\x1a``
+#: stops ``type`` on Windows from printing binary garbage.
+MAGIC = b"TPSV\r\n\x1a\n"
+
+#: The newest format version this code reads and the one it writes.
+VERSION = 1
+
+#: Little-endian header: magic, version, flags, width, height, 5 counts,
+#: 3 (compressed, raw) section sizes, payload CRC-32, header CRC-32.
+HEADER = struct.Struct("<8sHHIIIIIII6III")
+HEADER_SIZE = HEADER.size  # 72
+
+#: Offset of the header CRC-32, which covers every header byte before it.
+HEADER_CRC_OFFSET = HEADER_SIZE - 4
+
+#: Section names, in file order.
+SECTIONS = ("params", "regions", "features")
+
+# Limits, checked before anything is allocated from a declared size.
+MAX_FILE_BYTES = 256 * 2**20
+MAX_SIDE = 65535
+MAX_PIXELS = 2**28
+MAX_REGIONS = 65535
+MAX_POLYGONS = 2**20
+MAX_VERTICES = 2**26
+MAX_CTRL_POINTS = 2**22
+MAX_FEATURES = 2**26
+MIN_GRID = 2
+MAX_GRID = 256
+MAX_PARAMS_RAW = 2**20
+#: Largest zstd window the decoder accepts (level 19 uses at most 8 MiB).
+MAX_WINDOW = 2**27
+
+#: A section may inflate to more than RATIO_FLOOR bytes only at a ratio of at
+#: most MAX_RATIO: real sections compress 2-4x, bombs thousands of times.
+MAX_RATIO = 1024
+RATIO_FLOOR = 2**20
+
+#: Generous allowance for msgpack map headers, keys and bin headers per section.
+SECTION_OVERHEAD = 256
+
+
+@dataclass(frozen=True)
+class Header:
+    """The fixed 72-byte header, minus magic and checksums.
+
+    Attributes
+    ----------
+    version, flags : int
+    width, height : int
+        Image size in pixels.
+    regions, polygons, vertices, ctrl_points, features : int
+        Counts: regions, outline polygons (all regions), outline vertices (all
+        polygons), control points (sum of ``M * N``), features.
+    compressed, raw : tuple of 3 int
+        Per section (``SECTIONS`` order): bytes in the file, and bytes after
+        zstd decompression.
+    """
+
+    version: int
+    flags: int
+    width: int
+    height: int
+    regions: int
+    polygons: int
+    vertices: int
+    ctrl_points: int
+    features: int
+    compressed: tuple[int, int, int]
+    raw: tuple[int, int, int]
+
+    @property
+    def file_size(self) -> int:
+        """Total file size the header declares."""
+        return HEADER_SIZE + sum(self.compressed)
+
+
+def pack_header(h: Header, payload_crc: int) -> bytes:
+    """The 72 header bytes for ``h``, both checksums filled in."""
+    sizes = [v for pair in zip(h.compressed, h.raw) for v in pair]
+    body = HEADER.pack(
+        MAGIC, h.version, h.flags, h.width, h.height, h.regions, h.polygons,
+        h.vertices, h.ctrl_points, h.features, *sizes, payload_crc, 0,
+    )[:HEADER_CRC_OFFSET]
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def raw_size_bounds(h: Header) -> tuple[int, int, int]:
+    """Largest raw size each section may declare, given the header counts.
+
+    Every array in a section has a fixed width per item, so the counts bound
+    the raw size; a declared size above the bound is a zstd bomb or a lie.
+    """
+    params = MAX_PARAMS_RAW
+    regions = (
+        SECTION_OVERHEAD
+        + 9 * h.regions  # label: msgpack int, at most 9 bytes each
+        + 2 * h.regions  # grid: M-1, N-1 as uint8
+        + 4 * h.regions  # polygons per region
+        + 4 * h.polygons  # vertices per polygon
+        + 8 * h.vertices  # x, y as 32-bit
+        + 32 * h.ctrl_points  # 4 vectors x 2 coordinates x 32-bit
+    )
+    features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features
+    return params, regions, features
+
+
+def parse_header(data: bytes | memoryview) -> Header:
+    """Read and check the header of a whole .tpsv file.
+
+    Checks, in order: file size cap, magic, version, header length, header
+    checksum, flags, size and count limits, declared file length. The payload
+    checksum and the sections are checked by the caller.
+
+    Raises
+    ------
+    TpsvFormatError
+        What is wrong, in one line.
+    """
+    n = len(data)
+    if n > MAX_FILE_BYTES:
+        raise TpsvFormatError(f"file too large: {n} bytes (limit {MAX_FILE_BYTES})")
+    if n == 0:
+        raise TpsvFormatError("empty file: not a .tpsv file")
+    head = bytes(data[: len(MAGIC)])
+    if head != MAGIC[: len(head)]:
+        if head[:4] == MAGIC[:4]:
+            raise TpsvFormatError(
+                "bad magic: bytes 4-7 are altered (was the file sent in text mode?)"
+            )
+        raise TpsvFormatError("bad magic: not a .tpsv file")
+    if n >= len(MAGIC) + 2:
+        # Read the version before demanding a whole v1 header: a future
+        # version may have a different header, and deserves the clear message.
+        (version,) = struct.unpack_from("<H", data, len(MAGIC))
+        if not 1 <= version <= VERSION:
+            raise TpsvFormatError(
+                f"unsupported format version {version} (this tpsv reads up to {VERSION})"
+            )
+    if n < HEADER_SIZE:
+        raise TpsvFormatError(
+            f"truncated file: header needs {HEADER_SIZE} bytes, got {n}"
+        )
+    fields = HEADER.unpack_from(data, 0)
+    (_, version, flags, width, height, regions, polygons, vertices, ctrl_points,
+     features, c0, r0, c1, r1, c2, r2, _payload_crc, header_crc) = fields
+    if zlib.crc32(data[:HEADER_CRC_OFFSET]) != header_crc:
+        raise TpsvFormatError("corrupt header: header checksum mismatch")
+    if flags != 0:
+        raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {VERSION} defines none)")
+    h = Header(version, flags, width, height, regions, polygons, vertices,
+               ctrl_points, features, (c0, c1, c2), (r0, r1, r2))
+    check_header_limits(h)
+    if n < h.file_size:
+        raise TpsvFormatError(
+            f"truncated file: header declares {h.file_size} bytes, got {n}"
+        )
+    if n > h.file_size:
+        raise TpsvFormatError(
+            f"trailing data: header declares {h.file_size} bytes, got {n}"
+        )
+    return h
+
+
+def check_header_limits(h: Header) -> None:
+    """Raise TpsvFormatError when a size or count in ``h`` is out of range."""
+    for name, value in (("width", h.width), ("height", h.height)):
+        if not 1 <= value <= MAX_SIDE:
+            raise TpsvFormatError(f"bad header: {name} {value} not in 1..{MAX_SIDE}")
+    if h.width * h.height > MAX_PIXELS:
+        raise TpsvFormatError(
+            f"bad header: {h.width}x{h.height} exceeds {MAX_PIXELS} pixels"
+        )
+    limits = (
+        ("regions", h.regions, MAX_REGIONS),
+        ("polygons", h.polygons, MAX_POLYGONS),
+        ("vertices", h.vertices, MAX_VERTICES),
+        ("control points", h.ctrl_points, MAX_CTRL_POINTS),
+        ("features", h.features, MAX_FEATURES),
+    )
+    for name, value, limit in limits:
+        if value > limit:
+            raise TpsvFormatError(f"bad header: {value} {name} exceed the limit {limit}")
+    # Cross-count rules that hold for every valid model; checking them here
+    # keeps the raw-size bounds tight.
+    if h.polygons < h.regions:
+        raise TpsvFormatError(
+            f"bad header: {h.polygons} polygons for {h.regions} regions (each needs one)"
+        )
+    if h.vertices < 3 * h.polygons:
+        raise TpsvFormatError(
+            f"bad header: {h.vertices} vertices for {h.polygons} polygons (each needs 3)"
+        )
+    if h.ctrl_points < MIN_GRID**2 * h.regions or h.ctrl_points > MAX_GRID**2 * h.regions:
+        raise TpsvFormatError(
+            f"bad header: {h.ctrl_points} control points for {h.regions} regions"
+        )
+    if h.features and not h.regions:
+        raise TpsvFormatError(f"bad header: {h.features} features but no regions")
+    for name, raw, comp, bound in zip(SECTIONS, h.raw, h.compressed, raw_size_bounds(h)):
+        if raw > bound:
+            raise TpsvFormatError(
+                f"section {name}: declared size {raw} exceeds the bound {bound} "
+                "for the header counts"
+            )
+        if comp == 0:
+            raise TpsvFormatError(f"section {name}: empty (a zstd frame is required)")
+        if raw > RATIO_FLOOR and raw > MAX_RATIO * comp:
+            raise TpsvFormatError(
+                f"section {name}: declared size {raw} is over {MAX_RATIO} times "
+                f"its {comp} stored bytes (zstd bomb?)"
+            )

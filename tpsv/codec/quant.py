@@ -1,0 +1,441 @@
+"""Quantisation: Model <-> the integers a .tpsv file stores.
+
+``Quantized`` holds a model exactly as the file does (integers, plus the params
+as plain Python values). ``from_model`` rounds a model to it, ``to_model``
+turns it back into floats, and ``validate`` checks every rule of
+``docs/FORMAT.md`` on it. The encoder and the decoder share ``validate``, so the
+encoder never writes a file the decoder would refuse.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import TpsvFormatError
+from ..model import CURVILINEAR, Features, Model, Params, Patch, Region
+from . import layout
+
+#: Outline vertices are stored in units of 1/OUTLINE_SCALE px.
+OUTLINE_SCALE = 8
+#: Control vectors are stored in units of 1/CTRL_SCALE px.
+CTRL_SCALE = 16
+#: S, T aim at this many steps per pixel across a patch as wide as the image.
+ST_STEPS_PER_PX = 16
+MIN_ST_BITS = 8
+MAX_ST_BITS = 16
+
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+#: Params fields other than ``extra``: name -> (type, lowest, highest, lowest
+#: is exclusive). Every dataclass field of Params must be listed here (a test
+#: checks), or it would be dropped silently.
+PARAM_FIELDS = {
+    "t_canny": (float, 0.0, math.inf, False),
+    "t_super": (float, 0.0, math.inf, False),
+    "kernel_size": (int, 1, 4096, False),
+    "overlap": (float, 0.0, 0.5, True),
+    "smoothing": (float, 0.0, math.inf, False),
+}
+MAX_EXTRA_ITEMS = 256
+MAX_EXTRA_KEY = 256
+MAX_EXTRA_STR = 65536
+
+
+@dataclass
+class Quantized:
+    """A model as stored: integer arrays, counts, and plain-Python params.
+
+    Attributes
+    ----------
+    width, height : int
+    params : dict
+        ``PARAM_FIELDS`` names plus ``"extra"`` (a dict sorted by key).
+    labels : list of int
+        One per region.
+    grid : ndarray, shape (R, 2), int64
+        ``(M, N)`` per region.
+    poly_counts : ndarray, shape (R,), int64
+        Outline polygons per region (outer first, then holes).
+    vert_counts : ndarray, shape (P,), int64
+        Vertices per polygon, all regions in order.
+    xy : ndarray, shape (V, 2), int32
+        Outline vertices in 1/8 px.
+    ctrl : ndarray, shape (C * 8,), int32
+        Control vectors in 1/16 px: each region's ``(M, N, 4, 2)`` array,
+        flattened in C order, regions concatenated.
+    feature_counts : ndarray, shape (R,), int64
+        Features per region (features are sorted by region).
+    st_bits : int
+        ``S`` and ``T`` are integers in ``[0, 2**st_bits - 1]``.
+    st : ndarray, shape (F, 2), int64
+    lab : ndarray, shape (F, 3), uint8
+        ``round(L * 255 / 100)``, ``round(a) + 128``, ``round(b) + 128``.
+    kind : ndarray, shape (F,), uint8
+    pair : ndarray, shape (F,), int64
+    """
+
+    width: int
+    height: int
+    params: dict
+    labels: list
+    grid: np.ndarray
+    poly_counts: np.ndarray
+    vert_counts: np.ndarray
+    xy: np.ndarray
+    ctrl: np.ndarray
+    feature_counts: np.ndarray
+    st_bits: int
+    st: np.ndarray
+    lab: np.ndarray
+    kind: np.ndarray
+    pair: np.ndarray
+
+
+def st_bits_for(width: int, height: int) -> int:
+    """Bits per S and T for an image: about 1/16 px across a full-width patch.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels.
+
+    Returns
+    -------
+    int
+        ``clamp(bit_length(16 * max(width, height) - 1), 8, 16)``.
+    """
+    steps = ST_STEPS_PER_PX * max(int(width), int(height), 1)
+    return min(MAX_ST_BITS, max(MIN_ST_BITS, (steps - 1).bit_length()))
+
+
+# ---------------------------------------------------------------- model -> ints
+
+
+def from_model(model: Model) -> Quantized:
+    """Round a model to what the file stores.
+
+    Raises
+    ------
+    ValueError
+        The model cannot be represented (wrong shapes, non-finite values,
+        coordinates beyond 32-bit range, features not sorted by region).
+    """
+    width, height = _as_int(model.width, "width"), _as_int(model.height, "height")
+    regions = list(model.regions)
+    grid, poly_counts, vert_counts, xy, ctrl, labels = _quantize_regions(regions)
+    counts, st_bits, st, lab, kind, pair = _quantize_features(
+        model.features, len(regions), st_bits_for(width, height)
+    )
+    return Quantized(
+        width=width, height=height, params=quantize_params(model.params),
+        labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
+        xy=xy, ctrl=ctrl, feature_counts=counts, st_bits=st_bits, st=st, lab=lab,
+        kind=kind, pair=pair,
+    )
+
+
+def _as_int(value, name: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an int, got {type(value).__name__}")
+    return int(value)
+
+
+def _fixed_point(values: np.ndarray, scale: int, what: str, starts: np.ndarray) -> np.ndarray:
+    """``round(values * scale)`` as int32 (half to even), refusing what does not fit.
+
+    ``starts[r]`` is the first row of region ``r``, to name it in errors.
+    """
+    q = np.rint(values * scale)
+    bad = ~np.isfinite(q) | (q < INT32_MIN) | (q > INT32_MAX)
+    if bad.any():
+        row = int(np.nonzero(bad.reshape(bad.shape[0], -1).any(axis=1))[0][0])
+        r = int(np.searchsorted(starts, row, side="right")) - 1
+        raise ValueError(
+            f"region {r}: {what} coordinate non-finite or beyond the 32-bit fixed-point range"
+        )
+    return q.astype(np.int32)
+
+
+def _quantize_regions(regions: list[Region]):
+    labels, grid, poly_counts, vert_counts, polys, ctrls = [], [], [], [], [], []
+    for r, region in enumerate(regions):
+        labels.append(_as_int(region.label, f"region {r}: label"))
+        c = np.asarray(region.patch.ctrl, np.float64)
+        if c.ndim != 4 or c.shape[2:] != (4, 2):
+            raise ValueError(f"region {r}: ctrl has shape {c.shape}, expected (M, N, 4, 2)")
+        grid.append(c.shape[:2])
+        ctrls.append(c.reshape(-1, 8))
+        poly_counts.append(len(region.outline))
+        for k, poly in enumerate(region.outline):
+            p = np.asarray(poly, np.float64)
+            if p.ndim != 2 or p.shape[1] != 2:
+                raise ValueError(
+                    f"region {r}: outline polygon {k} has shape {p.shape}, expected (k, 2)"
+                )
+            vert_counts.append(p.shape[0])
+            polys.append(p)
+    grid = np.array(grid, np.int64).reshape(-1, 2)
+    poly_counts = np.array(poly_counts, np.int64)
+    vert_counts = np.array(vert_counts, np.int64)
+    # Quantise all regions at once: per-region numpy calls dominate otherwise.
+    vert_start = np.concatenate([[0], np.cumsum(vert_counts)])[np.cumsum(poly_counts) - poly_counts]
+    ctrl_start = np.cumsum(grid.prod(axis=1)) - grid.prod(axis=1)
+    xy = np.concatenate(polys) if polys else np.zeros((0, 2))
+    ctrl = np.concatenate(ctrls) if ctrls else np.zeros((0, 8))
+    return (
+        grid, poly_counts, vert_counts,
+        _fixed_point(xy, OUTLINE_SCALE, "outline", vert_start),
+        _fixed_point(ctrl, CTRL_SCALE, "ctrl", ctrl_start).ravel(),
+        labels,
+    )
+
+
+def _column(values, shape_tail: tuple, n: int | None, what: str) -> np.ndarray:
+    a = np.asarray(values)
+    if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail or (
+        n is not None and a.shape[0] != n
+    ):
+        want = ("F",) + shape_tail
+        raise ValueError(f"features.{what} has shape {a.shape}, expected {want} with F={n}")
+    return a
+
+
+def _quantize_features(f: Features, n_regions: int, st_bits: int):
+    region = _column(f.region, (), None, "region")
+    n = region.shape[0]
+    st = _column(f.st, (2,), n, "st").astype(np.float64)
+    lab = _column(f.lab, (3,), n, "lab").astype(np.float64)
+    kind = _column(f.kind, (), n, "kind")
+    pair = _column(f.pair, (), n, "pair")
+    for name, a in (("region", region), ("kind", kind), ("pair", pair)):
+        if n and a.dtype.kind not in "iub":
+            raise ValueError(f"features.{name} must be integers, got {a.dtype}")
+    region = region.astype(np.int64)
+    if n and (region.min() < 0 or region.max() >= n_regions):
+        raise ValueError(f"features.region out of range for {n_regions} regions")
+    if n and np.any(np.diff(region) < 0):
+        raise ValueError("features are not sorted by region")
+    if not (np.all(np.isfinite(st)) and np.all(np.isfinite(lab))):
+        raise ValueError("features: non-finite S, T or Lab value")
+    q = 2**st_bits - 1
+    st_q = np.rint(np.clip(st, 0.0, 1.0) * q).astype(np.int64)
+    lab_q = np.empty((n, 3), np.uint8)
+    lab_q[:, 0] = np.clip(np.rint(lab[:, 0] * (255.0 / 100.0)), 0, 255)
+    lab_q[:, 1:] = np.clip(np.rint(lab[:, 1:]), -128, 127) + 128
+    kind = np.asarray(kind).astype(np.int64)
+    if n and (kind.min() < 0 or kind.max() > 255):
+        raise ValueError("features.kind out of range")
+    counts = np.bincount(region, minlength=n_regions).astype(np.int64)
+    return counts, st_bits, st_q, lab_q, kind.astype(np.uint8), np.asarray(pair).astype(np.int64)
+
+
+def quantize_params(params: Params) -> dict:
+    """Params as the plain-Python dict the file stores (``extra`` sorted by key).
+
+    Raises
+    ------
+    ValueError
+        A field of the wrong type, or an ``extra`` value of an unsupported type.
+    """
+    names = {f.name for f in dataclasses.fields(Params)} - {"extra"}
+    if names != set(PARAM_FIELDS):
+        # A field added to Params but not to the format would be lost silently.
+        raise ValueError(
+            f"Params fields {sorted(names)} do not match the format's {sorted(PARAM_FIELDS)}"
+        )
+    out = {}
+    for name, (typ, *_range) in PARAM_FIELDS.items():
+        value = getattr(params, name)
+        if isinstance(value, (bool, np.bool_)) or not isinstance(
+            value, (int, float, np.integer, np.floating)
+        ):
+            raise ValueError(f"params.{name} must be a number, got {type(value).__name__}")
+        if typ is int and float(value) != int(value):
+            raise ValueError(f"params.{name} must be an integer, got {value}")
+        out[name] = typ(value)
+    if not isinstance(params.extra, dict):
+        raise ValueError("params.extra must be a dict")
+    extra = {}
+    for key in sorted(params.extra, key=str):
+        if not isinstance(key, str):
+            raise ValueError(f"params.extra key {key!r} is not a str")
+        extra[key] = _plain_value(params.extra[key], key)
+    out["extra"] = extra
+    return out
+
+
+def _plain_value(value, key: str):
+    """An ``extra`` value as a plain bool, int, float or str."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    raise ValueError(
+        f"params.extra[{key!r}] is a {type(value).__name__}; only bool, int, float, str are stored"
+    )
+
+
+# ---------------------------------------------------------------- validation
+
+
+def validate(q: Quantized) -> None:
+    """Check every value rule of the format on ``q``.
+
+    Raises
+    ------
+    TpsvFormatError
+        The first rule broken, in one line.
+    """
+    h = layout.Header(
+        version=layout.VERSION, flags=0, width=q.width, height=q.height,
+        regions=len(q.labels), polygons=int(q.vert_counts.size),
+        vertices=int(q.xy.shape[0]),
+        ctrl_points=int(q.ctrl.size // 8), features=int(q.st.shape[0]),
+        compressed=(1, 1, 1), raw=(0, 0, 0),
+    )
+    layout.check_header_limits(h)
+    _validate_params(q.params)
+    _validate_regions(q)
+    _validate_features(q)
+
+
+def _validate_params(p: dict) -> None:
+    for name, (typ, lo, hi, lo_open) in PARAM_FIELDS.items():
+        value = p[name]
+        # bool is an int subclass; msgpack keeps them apart, so must we.
+        if type(value) is not typ:
+            raise TpsvFormatError(f"params: {name} must be {typ.__name__}, got {type(value).__name__}")
+        if typ is float and not math.isfinite(value):
+            raise TpsvFormatError(f"params: {name} is not finite")
+        if value < lo or value > hi or (lo_open and value == lo):
+            bracket = "(" if lo_open else "["
+            raise TpsvFormatError(f"params: {name} = {value} not in {bracket}{lo}, {hi}]")
+    extra = p["extra"]
+    if len(extra) > MAX_EXTRA_ITEMS:
+        raise TpsvFormatError(f"params: {len(extra)} extra items exceed the limit {MAX_EXTRA_ITEMS}")
+    for key, value in extra.items():
+        if not isinstance(key, str) or not 1 <= len(key) <= MAX_EXTRA_KEY:
+            raise TpsvFormatError(f"params: extra key {key!r} is not a str of 1..{MAX_EXTRA_KEY} characters")
+        if type(value) not in (bool, int, float, str):
+            raise TpsvFormatError(f"params: extra[{key!r}] has unsupported type {type(value).__name__}")
+        if type(value) is int and not INT64_MIN <= value <= INT64_MAX:
+            raise TpsvFormatError(f"params: extra[{key!r}] beyond 64-bit range")
+        if type(value) is float and not math.isfinite(value):
+            raise TpsvFormatError(f"params: extra[{key!r}] is not finite")
+        if type(value) is str and len(value) > MAX_EXTRA_STR:
+            raise TpsvFormatError(f"params: extra[{key!r}] longer than {MAX_EXTRA_STR} characters")
+
+
+def _validate_regions(q: Quantized) -> None:
+    for r, label in enumerate(q.labels):
+        if type(label) is not int or not INT64_MIN <= label <= INT64_MAX:
+            raise TpsvFormatError(f"region {r}: label {label!r} is not a 64-bit integer")
+    bad = np.nonzero((q.grid < layout.MIN_GRID) | (q.grid > layout.MAX_GRID))[0]
+    if bad.size:
+        m, n = q.grid[bad[0]]
+        raise TpsvFormatError(
+            f"region {bad[0]}: control grid {m}x{n} not in "
+            f"{layout.MIN_GRID}..{layout.MAX_GRID} per side"
+        )
+    bad = np.nonzero(q.poly_counts < 1)[0]
+    if bad.size:
+        raise TpsvFormatError(f"region {bad[0]}: no outline polygon")
+    bad = np.nonzero(q.vert_counts < 3)[0]
+    if bad.size:
+        raise TpsvFormatError(
+            f"outline polygon {bad[0]} has {q.vert_counts[bad[0]]} vertices (at least 3)"
+        )
+
+
+def _validate_features(q: Quantized) -> None:
+    n = q.st.shape[0]
+    if int(q.feature_counts.sum()) != n:
+        raise TpsvFormatError(
+            f"features: per-region counts sum to {int(q.feature_counts.sum())}, expected {n}"
+        )
+    if not MIN_ST_BITS <= q.st_bits <= MAX_ST_BITS:
+        raise TpsvFormatError(f"features: st_bits {q.st_bits} not in {MIN_ST_BITS}..{MAX_ST_BITS}")
+    if n == 0:
+        return
+    top = 2**q.st_bits - 1
+    bad = np.nonzero((q.st < 0) | (q.st > top))[0]
+    if bad.size:
+        raise TpsvFormatError(f"feature {bad[0]}: S or T beyond {top} (st_bits {q.st_bits})")
+    bad = np.nonzero(q.kind > CURVILINEAR)[0]
+    if bad.size:
+        raise TpsvFormatError(f"feature {bad[0]}: kind {q.kind[bad[0]]} not in {{0, 1}}")
+    _validate_pairs(q.pair, q.kind)
+
+
+def _validate_pairs(pair: np.ndarray, kind: np.ndarray) -> None:
+    n = pair.shape[0]
+    idx = np.arange(n)
+    bad = np.nonzero((pair < -1) | (pair >= n))[0]
+    if bad.size:
+        raise TpsvFormatError(f"feature {bad[0]}: pair {pair[bad[0]]} not in [-1, {n})")
+    bad = np.nonzero(pair == idx)[0]
+    if bad.size:
+        raise TpsvFormatError(f"feature {bad[0]}: paired with itself")
+    paired = pair >= 0
+    back = np.where(paired, pair[np.where(paired, pair, 0)], idx)
+    bad = np.nonzero(paired & (back != idx))[0]
+    if bad.size:
+        i = bad[0]
+        raise TpsvFormatError(
+            f"feature {i}: pair is {pair[i]} but feature {pair[i]}'s pair is "
+            f"{pair[pair[i]]} (pairs must be symmetric)"
+        )
+    bad = np.nonzero(paired & (kind != CURVILINEAR))[0]
+    if bad.size:
+        raise TpsvFormatError(f"feature {bad[0]}: paired but not curvilinear")
+
+
+# ---------------------------------------------------------------- ints -> model
+
+
+def to_model(q: Quantized) -> Model:
+    """The float model a valid ``Quantized`` stands for."""
+    p = q.params
+    params = Params(**{name: p[name] for name in PARAM_FIELDS}, extra=dict(p["extra"]))
+    return Model(
+        width=q.width, height=q.height, regions=_dequantize_regions(q),
+        features=_dequantize_features(q), params=params,
+    )
+
+
+def _dequantize_regions(q: Quantized) -> list[Region]:
+    polys = _split(q.xy.astype(np.float64) / OUTLINE_SCALE, q.vert_counts)
+    ctrls = _split(q.ctrl.astype(np.float64) / CTRL_SCALE, q.grid.prod(axis=1) * 8)
+    poly_start = np.concatenate([[0], np.cumsum(q.poly_counts)]).tolist()
+    regions = []
+    for r, (label, (m, n)) in enumerate(zip(q.labels, q.grid.tolist())):
+        outline = polys[poly_start[r]:poly_start[r + 1]]
+        regions.append(Region(label=label, outline=outline, patch=Patch(ctrls[r].reshape(m, n, 4, 2))))
+    return regions
+
+
+def _split(values: np.ndarray, counts: np.ndarray) -> list[np.ndarray]:
+    """``values`` cut into consecutive pieces of ``counts`` rows (copies, so
+    that each piece owns its memory like a freshly built model's arrays)."""
+    if counts.size == 0:
+        return []
+    return [piece.copy() for piece in np.split(values, np.cumsum(counts)[:-1])]
+
+
+def _dequantize_features(q: Quantized) -> Features:
+    n = q.st.shape[0]
+    lab = np.empty((n, 3), np.float64)
+    lab[:, 0] = q.lab[:, 0] * (100.0 / 255.0)
+    lab[:, 1:] = q.lab[:, 1:].astype(np.float64) - 128.0
+    return Features(
+        region=np.repeat(np.arange(q.feature_counts.size), q.feature_counts).astype(np.int32),
+        st=q.st.astype(np.float64) / (2**q.st_bits - 1),
+        lab=lab.astype(np.float32),
+        kind=q.kind.astype(np.uint8),
+        pair=q.pair.astype(np.int32),
+    )

@@ -1,0 +1,297 @@
+"""The three sections of a .tpsv file as msgpack, before zstd.
+
+Bulk data sits in msgpack ``bin`` fields as byte planes of fixed-width
+little-endian integers: an array of ``n`` k-byte integers is stored as its
+``n`` lowest bytes, then its ``n`` next bytes, and so on. Coordinates are
+delta coded and zigzag mapped first, so most high planes are runs of zeros that
+zstd reduces to almost nothing. ``docs/FORMAT.md`` gives every field.
+"""
+
+from __future__ import annotations
+
+import msgpack
+import numpy as np
+
+from ..errors import TpsvFormatError
+from . import layout
+from .quant import PARAM_FIELDS, Quantized
+
+#: Lags of the delta coding of feature columns (measured on the samples).
+#: Curvilinear features come in adjacent pairs that straddle an edge: the
+#: position of feature i-1 (its partner, or the neighbouring pair) predicts S, T
+#: best, while colour is best predicted by feature i-2, the previous sample on
+#: the same side of the same edge.
+ST_LAG = 1
+LAB_LAG = 2
+#: Lag of outline and control-grid coordinates: neighbours along the polygon
+#: or along the grid row.
+GEOMETRY_LAG = 1
+
+REGION_KEYS = ("label", "grid", "polys", "verts", "xy", "ctrl")
+FEATURE_KEYS = ("st_bits", "count", "st", "lab", "kind", "pair")
+PARAM_KEYS = tuple(PARAM_FIELDS) + ("extra",)
+
+_UNSIGNED = {1: np.uint8, 2: np.uint16, 4: np.uint32}
+_SIGNED = {1: np.int8, 2: np.int16, 4: np.int32}
+
+
+# ---------------------------------------------------------------- transforms
+
+
+def to_planes(values: np.ndarray, width: int) -> bytes:
+    """Unsigned ``width``-byte integers as byte planes, lowest byte plane first."""
+    a = np.ascontiguousarray(values, dtype=np.dtype(_UNSIGNED[width]).newbyteorder("<"))
+    return a.view(np.uint8).reshape(-1, width).T.tobytes()
+
+
+def from_planes(buf: bytes, n: int, width: int) -> np.ndarray:
+    """Inverse of :func:`to_planes`: ``n`` unsigned integers, native byte order."""
+    planes = np.frombuffer(buf, np.uint8).reshape(width, n)
+    le = np.ascontiguousarray(planes.T).view(np.dtype(_UNSIGNED[width]).newbyteorder("<"))
+    return le.ravel().astype(_UNSIGNED[width])
+
+
+def delta_zigzag(values: np.ndarray, width: int, lag: int) -> np.ndarray:
+    """``zigzag(x[i] - x[i - lag])`` in ``width``-byte wrapping arithmetic.
+
+    ``x[i - lag]`` is 0 for the first ``lag`` items. Wrapping makes every
+    ``width``-byte input round-trip, however far apart neighbours are.
+    """
+    x = np.asarray(values).astype(_SIGNED[width]).view(_UNSIGNED[width])
+    d = x.copy()
+    d[lag:] -= x[:-lag]
+    s = d.view(_SIGNED[width])
+    bits = 8 * width
+    return ((s << 1) ^ (s >> (bits - 1))).view(_UNSIGNED[width])
+
+
+def undelta_zigzag(codes: np.ndarray, width: int, lag: int) -> np.ndarray:
+    """Inverse of :func:`delta_zigzag`, as signed ``width``-byte integers."""
+    u = np.asarray(codes, _UNSIGNED[width])
+    one = _UNSIGNED[width](1)
+    d = (u >> one) ^ (np.zeros_like(u) - (u & one))
+    x = np.empty_like(d)
+    for phase in range(lag):
+        x[phase::lag] = np.cumsum(d[phase::lag], dtype=_UNSIGNED[width])
+    return x.view(_SIGNED[width])
+
+
+def zigzag64(d: np.ndarray) -> np.ndarray:
+    """Zigzag of int64 values known to fit 32 bits signed, as uint32."""
+    d = np.asarray(d, np.int64)
+    return ((d << 1) ^ (d >> 63)).astype(np.uint32)
+
+
+def unzigzag64(z: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`zigzag64`, as int64."""
+    z = np.asarray(z, np.int64)
+    return (z >> 1) ^ -(z & 1)
+
+
+# ---------------------------------------------------------------- packing
+
+
+def _packb(obj) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True, use_single_float=False, strict_types=True)
+
+
+def pack_params(q: Quantized) -> bytes:
+    """The params section: a map of the Params fields plus ``extra``."""
+    return _packb({**{k: q.params[k] for k in PARAM_FIELDS}, "extra": dict(q.params["extra"])})
+
+
+def pack_regions(q: Quantized) -> bytes:
+    """The regions section: labels, grids, outlines and control vectors."""
+    grid = (q.grid - 1).astype(np.uint8)
+    return _packb({
+        "label": list(q.labels),
+        "grid": grid[:, 0].tobytes() + grid[:, 1].tobytes(),
+        "polys": to_planes(q.poly_counts, 4),
+        "verts": to_planes(q.vert_counts, 4),
+        "xy": b"".join(
+            to_planes(delta_zigzag(q.xy[:, k], 4, GEOMETRY_LAG), 4) for k in range(2)
+        ),
+        "ctrl": to_planes(delta_zigzag(_ctrl_planar(q), 4, GEOMETRY_LAG), 4),
+    })
+
+
+def _ctrl_planar(q: Quantized) -> np.ndarray:
+    """Control values reordered per region to (vector, axis, i, j): smooth runs."""
+    return q.ctrl[_ctrl_permutation(q.grid)]
+
+
+def _ctrl_unplanar(values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    out = np.empty_like(values)
+    out[_ctrl_permutation(grid)] = values
+    return out
+
+
+def _ctrl_permutation(grid: np.ndarray) -> np.ndarray:
+    """Index ``p`` such that ``ctrl[p]`` is in stored (planar) order.
+
+    Built per distinct grid shape rather than per region: a file may hold tens
+    of thousands of regions.
+    """
+    sizes = grid[:, 0] * grid[:, 1] * 8
+    starts = np.cumsum(sizes) - sizes
+    perm = np.empty(int(sizes.sum()), np.int64)
+    shapes, inverse = np.unique(grid, axis=0, return_inverse=True)
+    for k, (m, n) in enumerate(shapes.tolist()):
+        size = m * n * 8
+        local = np.arange(size).reshape(m, n, 4, 2).transpose(2, 3, 0, 1).ravel()
+        first = starts[inverse.ravel() == k][:, None]
+        perm[first + np.arange(size)] = first + local
+    return perm
+
+
+def pack_features(q: Quantized) -> bytes:
+    """The features section: columns of S, T, Lab, kind and pair."""
+    n = q.st.shape[0]
+    pair_code = np.where(q.pair >= 0, zigzag64(q.pair - np.arange(n)), 0)
+    return _packb({
+        "st_bits": int(q.st_bits),
+        "count": to_planes(q.feature_counts, 4),
+        "st": b"".join(
+            to_planes(delta_zigzag(q.st[:, k], 2, ST_LAG), 2) for k in range(2)
+        ),
+        "lab": b"".join(
+            delta_zigzag(q.lab[:, k], 1, LAB_LAG).tobytes() for k in range(3)
+        ),
+        "kind": q.kind.astype(np.uint8).tobytes(),
+        "pair": to_planes(pair_code, 4),
+    })
+
+
+# ---------------------------------------------------------------- unpacking
+
+
+def unpack(raw: bytes, name: str):
+    """msgpack-decode a section, turning every failure into TpsvFormatError.
+
+    Limits are the section's own size (msgpack's default), so no length field
+    can make it allocate more than the section already holds.
+    """
+    try:
+        return msgpack.unpackb(
+            raw, raw=False, strict_map_key=True, use_list=True,
+            object_pairs_hook=_unique_map, max_ext_len=0,
+        )
+    except TpsvFormatError as exc:
+        raise TpsvFormatError(f"section {name}: {exc}") from None
+    except Exception as exc:  # msgpack raises several types, some undocumented
+        detail = str(exc) or type(exc).__name__
+        raise TpsvFormatError(f"section {name}: bad msgpack ({detail})") from None
+
+
+def _unique_map(pairs: list) -> dict:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise TpsvFormatError("duplicate map key")
+    return out
+
+
+def _expect_map(obj, keys: tuple, name: str) -> dict:
+    if not isinstance(obj, dict):
+        raise TpsvFormatError(f"section {name}: expected a map, got {type(obj).__name__}")
+    missing = [k for k in keys if k not in obj]
+    if missing:
+        raise TpsvFormatError(f"section {name}: missing key {missing[0]!r}")
+    unknown = sorted(str(k) for k in obj if k not in keys)
+    if unknown:
+        raise TpsvFormatError(f"section {name}: unknown key {unknown[0]!r}")
+    return obj
+
+
+def _expect_bin(obj: dict, key: str, size: int, name: str) -> bytes:
+    value = obj[key]
+    if not isinstance(value, bytes):
+        raise TpsvFormatError(f"section {name}: {key} is not a bin")
+    if len(value) != size:
+        raise TpsvFormatError(
+            f"section {name}: {key} has {len(value)} bytes, expected {size}"
+        )
+    return value
+
+
+def unpack_params(raw: bytes) -> dict:
+    """Params dict from the params section (types are checked by validate)."""
+    obj = _expect_map(unpack(raw, "params"), PARAM_KEYS, "params")
+    if not isinstance(obj["extra"], dict):
+        raise TpsvFormatError("section params: extra is not a map")
+    if not all(isinstance(k, str) for k in obj["extra"]):
+        raise TpsvFormatError("section params: an extra key is not a str")
+    # Stored sorted; re-sorting makes quantize(decode(x)) == decode(x) hold.
+    obj["extra"] = dict(sorted(obj["extra"].items()))
+    return obj
+
+
+def unpack_regions(raw: bytes, h: layout.Header) -> dict:
+    """Region arrays from the regions section, sized and summed against ``h``."""
+    name = "regions"
+    obj = _expect_map(unpack(raw, name), REGION_KEYS, name)
+    r = h.regions
+    labels = obj["label"]
+    if not isinstance(labels, list) or len(labels) != r:
+        raise TpsvFormatError(f"section {name}: label is not an array of {r} ints")
+    g = np.frombuffer(_expect_bin(obj, "grid", 2 * r, name), np.uint8).astype(np.int64) + 1
+    grid = np.stack([g[:r], g[r:]], axis=1)
+    ctrl_points = int((grid[:, 0] * grid[:, 1]).sum())
+    if ctrl_points != h.ctrl_points:
+        raise TpsvFormatError(
+            f"section {name}: grids hold {ctrl_points} control points, header says {h.ctrl_points}"
+        )
+    poly_counts = from_planes(_expect_bin(obj, "polys", 4 * r, name), r, 4).astype(np.int64)
+    if int(poly_counts.sum()) != h.polygons:
+        raise TpsvFormatError(
+            f"section {name}: regions hold {int(poly_counts.sum())} polygons, header says {h.polygons}"
+        )
+    p = h.polygons
+    vert_counts = from_planes(_expect_bin(obj, "verts", 4 * p, name), p, 4).astype(np.int64)
+    if int(vert_counts.sum()) != h.vertices:
+        raise TpsvFormatError(
+            f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {h.vertices}"
+        )
+    v = h.vertices
+    xy_buf = _expect_bin(obj, "xy", 8 * v, name)
+    xy = np.stack([
+        undelta_zigzag(from_planes(xy_buf[4 * v * k:4 * v * (k + 1)], v, 4), 4, GEOMETRY_LAG)
+        for k in range(2)
+    ], axis=1)
+    c = 8 * h.ctrl_points
+    ctrl = undelta_zigzag(
+        from_planes(_expect_bin(obj, "ctrl", 4 * c, name), c, 4), 4, GEOMETRY_LAG
+    )
+    return dict(
+        labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
+        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid),
+    )
+
+
+def unpack_features(raw: bytes, h: layout.Header) -> dict:
+    """Feature arrays from the features section, sized against ``h``."""
+    name = "features"
+    obj = _expect_map(unpack(raw, name), FEATURE_KEYS, name)
+    st_bits = obj["st_bits"]
+    if type(st_bits) is not int:
+        raise TpsvFormatError(f"section {name}: st_bits is not an int")
+    r, n = h.regions, h.features
+    counts = from_planes(_expect_bin(obj, "count", 4 * r, name), r, 4).astype(np.int64)
+    st_buf = _expect_bin(obj, "st", 4 * n, name)
+    st = np.stack([
+        undelta_zigzag(from_planes(st_buf[2 * n * k:2 * n * (k + 1)], n, 2), 2, ST_LAG)
+        .view(np.uint16)
+        for k in range(2)
+    ], axis=1).astype(np.int64)
+    lab_buf = _expect_bin(obj, "lab", 3 * n, name)
+    lab = np.stack([
+        undelta_zigzag(np.frombuffer(lab_buf[n * k:n * (k + 1)], np.uint8), 1, LAB_LAG)
+        .view(np.uint8)
+        for k in range(3)
+    ], axis=1)
+    kind = np.frombuffer(_expect_bin(obj, "kind", n, name), np.uint8).copy()
+    code = from_planes(_expect_bin(obj, "pair", 4 * n, name), n, 4)
+    pair = np.where(code != 0, np.arange(n) + unzigzag64(code), -1)
+    return dict(
+        feature_counts=counts, st_bits=st_bits, st=st, lab=lab.reshape(n, 3),
+        kind=kind, pair=pair.astype(np.int64),
+    )

@@ -1,0 +1,721 @@
+"""Colour features in pixel coordinates: curvilinear pairs and gradation features.
+
+Paper section IV-C1 (curvilinear) and IV-C2 (gradation). Everything here is in
+*pixel* space (``x`` right, ``y`` down; pixel ``(r, c)`` covers ``[c, c+1] x
+[r, r+1]``, centre ``(c + 0.5, r + 0.5)``); the caller maps features into each
+region's patch ``(S, T)``.
+
+Gradient and scales
+-------------------
+One gradient serves both the Canny detector and the histogram of
+:mod:`tpsv.selection`: the 3x3 Sobel operator (OpenCV's, aperture 3, replicated
+border) applied to each channel of ``2.55 * Lab`` (so ``L`` spans 0-255 like
+an 8-bit grey image); at every pixel the channel with the largest L2 gradient
+magnitude is kept (what OpenCV's colour Canny does with BGR). Magnitudes are on
+the scale of ``cv2.Canny`` thresholds for 8-bit images: a step of height ``h``
+(0-255 units) gives ``4 h``. ``T_canny`` is the *high* hysteresis threshold and
+``T_canny / 2`` the low one (L2 magnitude).
+
+The superpixel variance ``sigma`` of a cell is the RMS colour deviation from the
+cell mean, ``sqrt(trace(cov))``, of ``2.55 * Lab`` -- the same 0-255 units as
+the gradient, so that ``T_super`` and the gradient histogram's ``sigma`` (from
+which the paper derives ``T0_super``) are commensurable.
+
+Curvilinear pairs (IV-C1, read as in SPEC: the pair straddles the edge)
+----------------------------------------------------------------------
+For a Canny edge pixel with unit gradient direction ``g``, the edge is first
+placed to sub-pixel accuracy along ``g`` (parabola through the magnitudes at
+``-g, 0, +g``, offset clamped to half a pixel), giving ``e``. Features sit at
+``e - 0.5 g`` and ``e + 0.5 g`` (1 px apart, on opposite sides of the edge).
+The feature at ``e + s 0.5 g`` takes the colour of the pixel containing
+``e + s 1.0 g`` (one pixel step out: the nearest pixel on its side) and the
+region of that pixel. If that pixel is in another region than the pixel
+containing the feature itself, the feature's own pixel gives colour and region
+instead, so a feature always lies in (or on the border of) its region and never
+carries another region's colour. A pair across a region border therefore
+belongs to two regions. The two halves are stored adjacently (``2k, 2k+1``) and
+``pair`` links them.
+
+Gradation features (IV-C2)
+--------------------------
+Adaptive superpixels as a hierarchy computed once per image. Level 0 is the
+paper's initial decomposition: SLIC (``cv2.ximgproc``, Lab, ruler 10) with
+cells of ``CELL_PIXELS = 4000`` pixels, i.e. ``N_cell = floor(N_pixel / 4000)``
+cells, cut by the region index so that no cell crosses a region border. Every
+cell is then split into (up to) 4 children by a SLIC-style k-means in ``(x, y,
+Lab)`` restricted to the cell (compactness 10, seeds at the quadrants of the
+cell, 3 iterations), recursively, down to cells of ``min_cell`` pixels (32: with
+4000-pixel cells that is at most 4 adaptive levels, the level limit). For a
+given ``T_super`` the cut through the tree refines a cell when its colour
+deviation exceeds ``T_super`` (or, for safety, when it is larger than
+``2 * CELL_PIXELS``). The paper's child-count formula (``W^p``, ``W^i``) only
+affects convergence speed (as the paper says); a fixed branching of 4 lets the
+tree be built once and cut at any ``T_super``, and makes the partition monotone:
+a smaller ``T_super`` refines it.
+
+Cell-boundary pixels become features at their pixel centres with their own
+colour: a pixel is a boundary pixel when its right or lower neighbour is in
+another cell (one side of each cell boundary), or when any 4-neighbour is in
+another *region* (both sides of region borders, so each region is sampled along
+its own outline), or on the image frame. They are thinned to one per 2x2 block
+of pixels per region (``thin``), about every 2nd pixel along a boundary; the
+count is monotone in the boundary set, hence in ``T_super``.
+
+Every region with at least 3 pixels gets at least 3 non-collinear features (the
+TPS affine part needs them): a region whose features are fewer or collinear
+gets its extreme pixels as extra features; a straight 1-px line gets three
+points offset a quarter pixel across the line inside its pixels. Regions of 1 or
+2 pixels get their pixel centres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .color import srgb_to_lab
+from .model import CURVILINEAR, GRADATION
+
+#: Lab is scaled by this so that L spans 0-255 (the gradient and variance scale).
+LAB_SCALE = 2.55
+#: Integer scale of the Sobel derivatives handed to cv2.Canny (int16).
+_CANNY_INT = 8.0
+#: Pixels per initial superpixel (the paper's N_pixel / 4000).
+CELL_PIXELS = 4000
+
+
+@dataclass
+class FeatureSet:
+    """Features in pixel coordinates.
+
+    Attributes
+    ----------
+    xy : ndarray (F, 2) float64
+        Pixel-space position ``(x, y)``.
+    region : ndarray (F,) int32
+        Region index (value of the index map) the feature belongs to.
+    lab : ndarray (F, 3) float32
+        CIE Lab colour.
+    kind : ndarray (F,) uint8
+        ``GRADATION`` (0) or ``CURVILINEAR`` (1).
+    pair : ndarray (F,) int32
+        Index of the other half of a curvilinear pair, or -1.
+    """
+
+    xy: np.ndarray
+    region: np.ndarray
+    lab: np.ndarray
+    kind: np.ndarray
+    pair: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.region.shape[0])
+
+    @classmethod
+    def empty(cls) -> "FeatureSet":
+        return cls(
+            xy=np.zeros((0, 2), np.float64),
+            region=np.zeros(0, np.int32),
+            lab=np.zeros((0, 3), np.float32),
+            kind=np.zeros(0, np.uint8),
+            pair=np.zeros(0, np.int32),
+        )
+
+    def subset(self, index: np.ndarray) -> "FeatureSet":
+        """Features at ``index`` (bool mask or integer array, in that order).
+
+        Pair indices are remapped; a pair whose partner is left out becomes -1.
+        """
+        idx = np.arange(len(self))[index]
+        remap = np.full(len(self) + 1, -1, np.int64)
+        remap[idx] = np.arange(idx.size)
+        pair = self.pair[idx].astype(np.int64)
+        pair = np.where(pair >= 0, remap[pair], -1).astype(np.int32)
+        return FeatureSet(
+            xy=self.xy[idx].astype(np.float64),
+            region=self.region[idx].astype(np.int32),
+            lab=self.lab[idx].astype(np.float32),
+            kind=self.kind[idx].astype(np.uint8),
+            pair=pair,
+        )
+
+    @staticmethod
+    def concat(parts: list["FeatureSet"]) -> "FeatureSet":
+        """Concatenate, shifting pair indices of later parts."""
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return FeatureSet.empty()
+        pairs, off = [], 0
+        for p in parts:
+            pairs.append(np.where(p.pair >= 0, p.pair + off, -1))
+            off += len(p)
+        return FeatureSet(
+            xy=np.concatenate([p.xy for p in parts]).astype(np.float64),
+            region=np.concatenate([p.region for p in parts]).astype(np.int32),
+            lab=np.concatenate([p.lab for p in parts]).astype(np.float32),
+            kind=np.concatenate([p.kind for p in parts]).astype(np.uint8),
+            pair=np.concatenate(pairs).astype(np.int32),
+        )
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def _as_rgb(rgb: np.ndarray) -> np.ndarray:
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] < 3:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
+    rgb = rgb[..., :3]
+    if rgb.dtype == np.uint8:
+        return rgb.astype(np.float32) / 255.0
+    return np.clip(rgb.astype(np.float32), 0.0, 1.0)
+
+
+def _as_index(index: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    if index is None:
+        return np.zeros(shape, np.int32)
+    index = np.asarray(index)
+    if index.shape != shape:
+        raise ValueError(f"index map shape {index.shape} does not match image {shape}")
+    if index.size and index.min() < 0:
+        raise ValueError("index map has negative values")
+    return index.astype(np.int32)
+
+
+def lab_gradient(lab255: np.ndarray, blur_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sobel gradient of the strongest channel of a multi-channel image.
+
+    Parameters
+    ----------
+    lab255 : ndarray (H, W, C) float32
+        Image (here ``2.55 * Lab``).
+    blur_sigma : float
+        Gaussian pre-blur (0: none, as ``cv2.Canny``).
+
+    Returns
+    -------
+    dx, dy, mag : ndarray (H, W) float32
+        Derivatives (3x3 Sobel, unnormalised) of the channel with the largest
+        magnitude at each pixel, and that L2 magnitude.
+    """
+    img = np.ascontiguousarray(lab255, np.float32)
+    if blur_sigma > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
+    if img.ndim == 2:
+        img = img[..., None]
+    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
+    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
+    if gx.ndim == 2:
+        gx, gy = gx[..., None], gy[..., None]
+    m2 = gx * gx + gy * gy
+    ch = np.argmax(m2, axis=-1)[..., None]
+    dx = np.take_along_axis(gx, ch, -1)[..., 0]
+    dy = np.take_along_axis(gy, ch, -1)[..., 0]
+    mag = np.sqrt(np.take_along_axis(m2, ch, -1)[..., 0])
+    return dx, dy, mag
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Sample ``img`` at (column, row) positions in index space, clamped."""
+    h, w = img.shape
+    x = np.clip(x, 0.0, w - 1.0)
+    y = np.clip(y, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    x1 = np.minimum(x0 + 1, w - 1)
+    y1 = np.minimum(y0 + 1, h - 1)
+    fx = x - x0
+    fy = y - y0
+    a = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    b = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return a * (1 - fy) + b * fy
+
+
+# ----------------------------------------------------------------------- extractor
+
+
+def _split4(
+    lbl: np.ndarray,
+    n: int,
+    can: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    col: np.ndarray,
+    iters: int,
+    compactness: float,
+) -> np.ndarray:
+    """SLIC-style 4-way k-means inside every cell with ``can[cell]``.
+
+    Returns the child (0-3) of every pixel of those cells, in raster order of
+    the selected pixels. Seeds start at the quadrants (centroid +- half the
+    standard deviation in x and y) with the cell's mean colour; the distance is
+    ``d_lab^2 + (m / S)^2 d_xy^2`` with ``S^2`` = cell size / 4.
+    """
+    sel_idx = np.nonzero(can[lbl])[0]
+    pid = np.full(n, -1, np.int64)
+    ns = int(can.sum())
+    pid[can] = np.arange(ns)
+    pc_r = pid[lbl[sel_idx]]
+    order = np.argsort(pc_r, kind="stable")
+    pc = pc_r[order]
+    src = sel_idx[order]
+    X = px[src]
+    Y = py[src]
+    C = col[src]
+    cnt = np.bincount(pc, minlength=ns)
+    cntp = cnt.astype(np.float64)
+    cx = np.bincount(pc, X, ns) / cntp
+    cy = np.bincount(pc, Y, ns) / cntp
+    sx = np.sqrt(np.maximum(np.bincount(pc, X.astype(np.float64) ** 2, ns) / cntp - cx * cx, 0))
+    sy = np.sqrt(np.maximum(np.bincount(pc, Y.astype(np.float64) ** 2, ns) / cntp - cy * cy, 0))
+    seeds = np.empty((ns, 4, 5), np.float32)
+    mc = [np.bincount(pc, C[:, c], ns) / cntp for c in range(3)]
+    for k, (ax, ay) in enumerate(((-1, -1), (1, -1), (-1, 1), (1, 1))):
+        seeds[:, k, 0] = cx + 0.5 * ax * sx
+        seeds[:, k, 1] = cy + 0.5 * ay * sy
+        for c in range(3):
+            seeds[:, k, 2 + c] = mc[c]
+    wp = (compactness**2 / np.maximum(cntp / 4.0, 1.0)).astype(np.float32)
+    wxy = np.repeat(wp, cnt)
+    F = np.column_stack([X * wxy, Y * wxy, C]).astype(np.float32)  # (M, 5)
+    a = np.zeros(pc.size, np.int64)
+    for _ in range(iters):
+        # d_k = |s_k|_w^2 - 2 F . s_k (+ per-pixel terms that do not move the argmin)
+        const = wp[:, None] * (seeds[:, :, 0] ** 2 + seeds[:, :, 1] ** 2) + (seeds[:, :, 2:] ** 2).sum(-1)
+        sp = np.repeat(seeds * np.float32(-2.0), cnt, axis=0)  # (M, 4, 5)
+        d = np.repeat(const.astype(np.float32), cnt, axis=0)
+        d += np.einsum("mf,mkf->mk", F, sp)
+        a = np.argmin(d, axis=1)
+        key = pc * 4 + a
+        ck = np.bincount(key, minlength=ns * 4).astype(np.float64)
+        nz = ck > 0
+        flat = seeds.reshape(-1, 5)
+        for f, v in enumerate((X, Y, C[:, 0], C[:, 1], C[:, 2])):
+            sm = np.bincount(key, v, ns * 4)
+            flat[nz, f] = (sm[nz] / ck[nz]).astype(np.float32)
+    out = np.empty(pc.size, np.int64)
+    out[np.searchsorted(sel_idx, src)] = a
+    return out
+
+
+@dataclass
+class _Hierarchy:
+    """Nested cell partitions: ``labels[L]`` (N,) per level, with stats per cell."""
+
+    labels: list[np.ndarray]
+    size: list[np.ndarray]
+    rms: list[np.ndarray]
+    split: list[np.ndarray]  # bool per cell: has >= 2 children at the next level
+
+
+class FeatureExtractor:
+    """Threshold-independent precomputation; ``extract`` for any thresholds.
+
+    Lab conversion, the gradient (and its int16 copy for ``cv2.Canny``) are
+    computed here; the superpixel hierarchy and the per-region pixel lists on
+    first use. Each ``extract`` call then costs a Canny pass, a cut through the
+    hierarchy and a few vectorised passes over the boundary pixels.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float in [0, 1] (uint8 accepted)
+    index : ndarray (H, W) int
+        Region index of every pixel (0..R-1).
+    blur_sigma : float
+        Gaussian pre-blur of the gradient (0: none, OpenCV Canny's convention).
+    step : int
+        Curvilinear subsampling: keep the strongest edge pixel per ``step x
+        step`` block (1: every edge pixel, the paper's scheme).
+    thin : int
+        Gradation thinning: one boundary pixel per ``thin x thin`` block per
+        region.
+    min_cell : int
+        Cells smaller than this are not split further (the level limit: with
+        4000-pixel base cells and ``min_cell = 32``, at most 4 adaptive levels).
+    seed : int
+        Kept for API symmetry; the hierarchy is deterministic.
+    """
+
+    def __init__(
+        self,
+        rgb: np.ndarray,
+        index: np.ndarray | None = None,
+        *,
+        blur_sigma: float = 0.0,
+        step: int = 1,
+        thin: int = 2,
+        min_cell: int = 32,
+        seed: int = 0,
+    ) -> None:
+        self.rgb = _as_rgb(rgb)
+        self.h, self.w = self.rgb.shape[:2]
+        self.index = _as_index(index, (self.h, self.w))
+        self.n_regions = int(self.index.max()) + 1 if self.index.size else 0
+        self.step = max(1, int(step))
+        self.thin = max(1, int(thin))
+        self.min_cell = max(2, int(min_cell))
+        self.seed = int(seed)
+        self.lab = srgb_to_lab(self.rgb)
+        self.lab255 = self.lab * np.float32(LAB_SCALE)
+        self.dx, self.dy, self.mag = lab_gradient(self.lab255, blur_sigma)
+        lim = 32767.0
+        self._dx16 = np.clip(np.rint(self.dx * _CANNY_INT), -lim, lim).astype(np.int16)
+        self._dy16 = np.clip(np.rint(self.dy * _CANNY_INT), -lim, lim).astype(np.int16)
+        self._hier: _Hierarchy | None = None
+        self._order: np.ndarray | None = None
+        self._bounds: np.ndarray | None = None
+        # Region borders (both sides) and the image frame: always boundary pixels.
+        ix = self.index
+        rb = np.zeros((self.h, self.w), bool)
+        d = ix[:, :-1] != ix[:, 1:]
+        rb[:, :-1] |= d
+        rb[:, 1:] |= d
+        d = ix[:-1, :] != ix[1:, :]
+        rb[:-1, :] |= d
+        rb[1:, :] |= d
+        rb[0, :] = rb[-1, :] = True
+        rb[:, 0] = rb[:, -1] = True
+        self._fixed_boundary = rb
+
+    # ------------------------------------------------------------- curvilinear
+
+    def edges(self, t_canny: float) -> np.ndarray:
+        """Canny edge mask (bool HxW): high threshold ``t_canny``, low ``t_canny / 2``."""
+        hi = float(max(t_canny, 0.0)) * _CANNY_INT
+        lo = 0.5 * hi
+        e = cv2.Canny(self._dx16, self._dy16, lo, hi, L2gradient=True)
+        return e > 0
+
+    def curvilinear(self, t_canny: float, step: int | None = None) -> FeatureSet:
+        """Curvilinear feature pairs for threshold ``t_canny`` (see module doc)."""
+        step = self.step if step is None else max(1, int(step))
+        ys, xs = np.nonzero(self.edges(t_canny))
+        if ys.size == 0:
+            return FeatureSet.empty()
+        if step > 1:
+            nbx = (self.w + step - 1) // step
+            key = (ys // step) * nbx + xs // step
+            order = np.lexsort((-self.mag[ys, xs], key))
+            first = np.ones(order.size, bool)
+            first[1:] = key[order][1:] != key[order][:-1]
+            keep = np.sort(order[first])
+            ys, xs = ys[keep], xs[keep]
+        gx = self.dx[ys, xs].astype(np.float64)
+        gy = self.dy[ys, xs].astype(np.float64)
+        gn = np.hypot(gx, gy)
+        gn[gn == 0] = 1.0
+        gx /= gn
+        gy /= gn
+        # Sub-pixel edge position along g (parabola through -g, 0, +g).
+        m0 = self.mag[ys, xs].astype(np.float64)
+        mp = _bilinear(self.mag, xs + gx, ys + gy)
+        mm = _bilinear(self.mag, xs - gx, ys - gy)
+        den = mm - 2.0 * m0 + mp
+        with np.errstate(divide="ignore", invalid="ignore"):
+            delta = np.where(den < -1e-9, 0.5 * (mm - mp) / den, 0.0)
+        delta = np.clip(delta, -0.5, 0.5)
+        ex = xs + 0.5 + delta * gx
+        ey = ys + 0.5 + delta * gy
+
+        w, h, ix = self.w, self.h, self.index
+        n = ys.size
+        xy = np.empty((2 * n, 2), np.float64)
+        region = np.empty(2 * n, np.int32)
+        lab = np.empty((2 * n, 3), np.float32)
+        for k, s in enumerate((-1.0, 1.0)):
+            px = np.clip(ex + 0.5 * s * gx, 0.0, float(w))
+            py = np.clip(ey + 0.5 * s * gy, 0.0, float(h))
+            # Pixel containing the feature, and the colour pixel one step out.
+            rc = np.clip(np.floor(px).astype(np.int64), 0, w - 1)
+            rr = np.clip(np.floor(py).astype(np.int64), 0, h - 1)
+            qc = np.clip(np.floor(ex + s * gx).astype(np.int64), 0, w - 1)
+            qr = np.clip(np.floor(ey + s * gy).astype(np.int64), 0, h - 1)
+            same = ix[qr, qc] == ix[rr, rc]
+            cc = np.where(same, qc, rc)
+            cr = np.where(same, qr, rr)
+            xy[k::2, 0] = px
+            xy[k::2, 1] = py
+            region[k::2] = ix[cr, cc]
+            lab[k::2] = self.lab[cr, cc]
+        pair = np.arange(2 * n, dtype=np.int32) ^ 1
+        return FeatureSet(
+            xy=xy,
+            region=region,
+            lab=lab,
+            kind=np.full(2 * n, CURVILINEAR, np.uint8),
+            pair=pair,
+        )
+
+    # --------------------------------------------------------------- gradation
+
+    def _region_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._order is None:
+            flat = self.index.ravel()
+            self._order = np.argsort(flat, kind="stable")
+            self._bounds = np.concatenate(
+                [[0], np.cumsum(np.bincount(flat, minlength=self.n_regions))]
+            )
+        return self._order, self._bounds
+
+    def hierarchy(self) -> _Hierarchy:
+        """The superpixel tree (built on first use, reused for every ``T_super``)."""
+        if self._hier is None:
+            self._hier = self._build_hierarchy()
+        return self._hier
+
+    def _cell_stats(self, lbl: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        cnt = np.bincount(lbl, minlength=n).astype(np.float64)
+        safe = np.maximum(cnt, 1.0)
+        var = np.zeros(n)
+        for c in range(3):
+            v = self._col255[:, c]
+            m = np.bincount(lbl, v, n) / safe
+            var += np.bincount(lbl, v * v, n) / safe - m * m
+        return cnt, np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+
+    def _build_hierarchy(self, max_levels: int = 16, iters: int = 3, compactness: float = 10.0) -> _Hierarchy:
+        h, w = self.h, self.w
+        yy, xx = np.mgrid[0:h, 0:w]
+        px = (xx.ravel() + 0.5).astype(np.float32)
+        py = (yy.ravel() + 0.5).astype(np.float32)
+        col = self.lab.reshape(-1, 3).astype(np.float32)  # k-means in Lab units
+        self._col255 = self.lab255.reshape(-1, 3).astype(np.float64)
+        lbl = self._base_cells()
+        n = int(lbl.max()) + 1 if lbl.size else 1
+        labels, sizes, rmss, splits = [], [], [], []
+        floor_t = 1.0  # the search never goes below T_super = 1 (see selection)
+        for level in range(max_levels + 1):
+            size, rms = self._cell_stats(lbl, n)
+            can = (size >= self.min_cell) & ((size > 2 * CELL_PIXELS) | (rms > floor_t))
+            labels.append(lbl.astype(np.int32))
+            sizes.append(size)
+            rmss.append(rms)
+            if level == max_levels or not can.any():
+                splits.append(np.zeros(n, bool))
+                break
+            a_sel = _split4(lbl, n, can, px, py, col, iters, compactness)
+            sel = can[lbl]
+            # New labels: code = parent * 4 + child, compacted.
+            code = lbl * 4
+            code[sel] += a_sel
+            used = np.bincount(code, minlength=n * 4) > 0
+            remap = np.cumsum(used) - 1
+            new = remap[code]
+            nn = int(used.sum())
+            children = np.bincount(np.nonzero(used)[0] // 4, minlength=n)
+            splits.append(children >= 2)
+            lbl, n = new, nn
+        del self._col255
+        assert len(labels) == len(splits)
+        return _Hierarchy(labels=labels, size=sizes, rms=rmss, split=splits)
+
+    def _base_cells(self) -> np.ndarray:
+        """Level 0: superpixels of ~``CELL_PIXELS`` pixels (cv2 SLIC) cut by the regions."""
+        h, w = self.h, self.w
+        ix = self.index.ravel().astype(np.int64)
+        size = int(round(np.sqrt(CELL_PIXELS)))
+        if h * w <= 2 * CELL_PIXELS or min(h, w) < 2:
+            sp = np.zeros(h * w, np.int64)
+        else:
+            slic = cv2.ximgproc.createSuperpixelSLIC(
+                np.ascontiguousarray(self.lab), cv2.ximgproc.SLIC, size, 10.0
+            )
+            slic.iterate(10)
+            slic.enforceLabelConnectivity(25)
+            sp = slic.getLabels().ravel().astype(np.int64)
+        code = ix * (int(sp.max()) + 1) + sp
+        _, inv = np.unique(code, return_inverse=True)
+        return inv.ravel().astype(np.int64)
+
+    def cells(self, t_super: float) -> np.ndarray:
+        """Cell id per pixel (HxW int64) of the adaptive partition for ``t_super``."""
+        hier = self.hierarchy()
+        offs = np.cumsum([0] + [s.size for s in hier.size])
+        eff = hier.labels[0].astype(np.int64)
+        active = np.ones(eff.size, bool)
+        for L in range(len(hier.labels) - 1):
+            refine = hier.split[L] & ((hier.size[L] > 2 * CELL_PIXELS) | (hier.rms[L] > t_super))
+            r = active & refine[hier.labels[L]]
+            if not r.any():
+                break
+            eff = np.where(r, hier.labels[L + 1].astype(np.int64) + offs[L + 1], eff)
+            active = r
+        return eff.reshape(self.h, self.w)
+
+    def boundary(self, t_super: float) -> np.ndarray:
+        """Cell-boundary pixels (bool HxW) for ``t_super`` (see module doc)."""
+        eff = self.cells(t_super)
+        b = self._fixed_boundary.copy()
+        b[:, :-1] |= eff[:, :-1] != eff[:, 1:]
+        b[:-1, :] |= eff[:-1, :] != eff[1:, :]
+        return b
+
+    def gradation(self, t_super: float) -> FeatureSet:
+        """Gradation features for threshold ``t_super``, every region covered."""
+        return FeatureSet.concat(list(self._gradation_parts(t_super)))
+
+    def _gradation_parts(self, t_super: float) -> tuple[FeatureSet, FeatureSet]:
+        """(thinned boundary features, region-coverage anchors)."""
+        b = self.boundary(t_super)
+        ys, xs = np.nonzero(b)
+        th = self.thin
+        if th > 1:
+            nbx = (self.w + th - 1) // th
+            nby = (self.h + th - 1) // th
+            key = (self.index[ys, xs].astype(np.int64) * nby + ys // th) * nbx + xs // th
+            _, first = np.unique(key, return_index=True)
+            first = np.sort(first)
+            ys, xs = ys[first], xs[first]
+        fs = FeatureSet(
+            xy=np.stack([xs + 0.5, ys + 0.5], axis=1).astype(np.float64),
+            region=self.index[ys, xs].astype(np.int32),
+            lab=self.lab[ys, xs].astype(np.float32),
+            kind=np.full(ys.size, GRADATION, np.uint8),
+            pair=np.full(ys.size, -1, np.int32),
+        )
+        return fs, self._anchors(fs)
+
+    def _anchors(self, fs: FeatureSet) -> FeatureSet:
+        """Extra features for regions without 3 non-collinear ones (see module doc)."""
+        R = self.n_regions
+        if R == 0:
+            return FeatureSet.empty()
+        reg = fs.region
+        n = np.bincount(reg, minlength=R).astype(np.float64)
+        safe = np.maximum(n, 1.0)
+        x, y = fs.xy[:, 0], fs.xy[:, 1]
+        mx = np.bincount(reg, x, R) / safe
+        my = np.bincount(reg, y, R) / safe
+        dx, dy = x - mx[reg], y - my[reg]
+        cxx = np.bincount(reg, dx * dx, R) / safe
+        cyy = np.bincount(reg, dy * dy, R) / safe
+        cxy = np.bincount(reg, dx * dy, R) / safe
+        det = cxx * cyy - cxy * cxy
+        npix = np.bincount(self.index.ravel(), minlength=R)
+        bad = np.nonzero((npix > 0) & ((n < 3) | (det < 1e-4)) & ~((npix <= 2) & (n >= npix)))[0]
+        if bad.size == 0:
+            return FeatureSet.empty()
+        order, bounds = self._region_pixels()
+        forder = np.argsort(reg, kind="stable")
+        fbounds = np.concatenate([[0], np.cumsum(np.bincount(reg, minlength=R))])
+        w = self.w
+        pts: list[tuple[float, float, int, int, int]] = []  # x, y, row, col, region
+        for r in bad:
+            flat = order[bounds[r] : bounds[r + 1]]
+            rows, cols = flat // w, flat % w
+            have = {(float(a), float(b)) for a, b in fs.xy[forder[fbounds[r] : fbounds[r + 1]]]}
+            if flat.size <= 2:
+                cand = [(c + 0.5, rr + 0.5, rr, c) for rr, c in zip(rows, cols)]
+            else:
+                picks = set()
+                for s in (cols, rows, cols + rows, cols - rows):
+                    picks.add(int(np.argmin(s)))
+                    picks.add(int(np.argmax(s)))
+                picks.add(flat.size // 2)
+                sel = sorted(picks)
+                ax = cols[sel] + 0.5
+                ay = rows[sel] + 0.5
+                ddx, ddy = ax - ax.mean(), ay - ay.mean()
+                dt = np.mean(ddx * ddx) * np.mean(ddy * ddy) - np.mean(ddx * ddy) ** 2
+                if len(sel) >= 3 and dt > 1e-4:
+                    cand = [(cols[i] + 0.5, rows[i] + 0.5, rows[i], cols[i]) for i in sel]
+                else:
+                    # Straight 1-px line: raster-first and -last pixels are its
+                    # ends, the median one is inside; offset across the line.
+                    i0, i1, im = 0, flat.size - 1, flat.size // 2
+                    lx = float(cols[i1] - cols[i0])
+                    ly = float(rows[i1] - rows[i0])
+                    ln = np.hypot(lx, ly) or 1.0
+                    nx, ny = -ly / ln, lx / ln
+                    cand = [
+                        (cols[i] + 0.5 + sgn * 0.25 * nx, rows[i] + 0.5 + sgn * 0.25 * ny, rows[i], cols[i])
+                        for i, sgn in ((i0, -1.0), (i1, -1.0), (im, 1.0))
+                    ]
+            for cx, cy, rr, c in cand:
+                if (float(cx), float(cy)) not in have:
+                    have.add((float(cx), float(cy)))
+                    pts.append((float(cx), float(cy), int(rr), int(c), int(r)))
+        if not pts:
+            return FeatureSet.empty()
+        a = np.array(pts, np.float64)
+        rr = a[:, 2].astype(np.int64)
+        cc = a[:, 3].astype(np.int64)
+        return FeatureSet(
+            xy=a[:, :2].copy(),
+            region=a[:, 4].astype(np.int32),
+            lab=self.lab[rr, cc].astype(np.float32),
+            kind=np.full(len(pts), GRADATION, np.uint8),
+            pair=np.full(len(pts), -1, np.int32),
+        )
+
+    # ------------------------------------------------------------------ merged
+
+    def extract(self, t_canny: float, t_super: float, dedup: float = 0.5) -> FeatureSet:
+        """Curvilinear pairs + gradation features, merged and sorted by region.
+
+        A gradation feature within ``dedup`` pixels of a curvilinear feature of
+        the same region is dropped (the region-coverage anchors are kept).
+        The result is stably sorted by region (curvilinear first within a
+        region), pair indices remapped.
+        """
+        cur = self.curvilinear(t_canny)
+        grad, anchors = self._gradation_parts(t_super)
+        if len(cur) and len(grad) and dedup > 0:
+            from scipy.spatial import cKDTree
+
+            span = float(self.w + self.h + 10)
+            key_c = np.column_stack([cur.xy, cur.region * span])
+            key_g = np.column_stack([grad.xy, grad.region * span])
+            dist, _ = cKDTree(key_c).query(key_g, k=1, distance_upper_bound=dedup + 1e-9)
+            grad = grad.subset(~np.isfinite(dist) | (dist > dedup))
+        allf = FeatureSet.concat([cur, grad, anchors])
+        order = np.argsort(allf.region, kind="stable")
+        return allf.subset(order)
+
+
+# ----------------------------------------------------------------- plain functions
+
+
+def curvilinear_features(
+    rgb: np.ndarray, index: np.ndarray | None, t_canny: float, step: int = 1, blur_sigma: float = 0.0
+) -> FeatureSet:
+    """Curvilinear feature pairs in pixel coordinates (see module doc).
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    index : ndarray (H, W) int32
+        Region index per pixel.
+    t_canny : float
+        Canny high threshold on the Sobel magnitude of ``2.55 * Lab`` (the
+        scale of ``cv2.Canny`` on 8-bit images); the low one is half of it.
+    step : int
+        Keep the strongest edge pixel per ``step x step`` block (1: all).
+    """
+    return FeatureExtractor(rgb, index, blur_sigma=blur_sigma, step=step).curvilinear(t_canny)
+
+
+def gradation_features(
+    rgb: np.ndarray, index: np.ndarray | None, t_super: float, seed: int = 0, thin: int = 2
+) -> FeatureSet:
+    """Gradation features from adaptive superpixels (see module doc).
+
+    Parameters
+    ----------
+    t_super : float
+        Cell colour-deviation threshold (RMS of ``2.55 * Lab`` about the cell
+        mean): cells above it are split further.
+    """
+    return FeatureExtractor(rgb, index, thin=thin, seed=seed).gradation(t_super)
+
+
+def extract_features(
+    rgb: np.ndarray, index: np.ndarray | None, t_canny: float, t_super: float, seed: int = 0
+) -> FeatureSet:
+    """Both kinds, merged, de-duplicated and sorted by region.
+
+    For repeated calls on one image use :class:`FeatureExtractor`.
+    """
+    return FeatureExtractor(rgb, index, seed=seed).extract(t_canny, t_super)
