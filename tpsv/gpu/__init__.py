@@ -5,11 +5,28 @@ The same kernels run on Warp's ``cpu`` device (CI) and on ``cuda``.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import sys
 
 from ..errors import TpsvError
 
 _initialised = False
+
+
+@contextlib.contextmanager
+def _stderr_silenced():
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 
 def warp():
@@ -18,10 +35,18 @@ def warp():
     import warp as wp
 
     if not _initialised:
-        wp.config.quiet = True
-        if os.environ.get("TPSV_WARP_VERBOSE"):
-            wp.config.quiet = False
-        wp.init()
+        # Warp's banner and "module loaded" lines would break one-line errors and
+        # --json on stdout; TPSV_WARP_VERBOSE=1 brings them back for debugging.
+        verbose = bool(os.environ.get("TPSV_WARP_VERBOSE"))
+        wp.config.quiet = not verbose
+        wp.config.log_level = logging.INFO if verbose else logging.WARNING
+        if verbose:
+            wp.init()
+        else:
+            # The native library warns on stderr when a machine has no CUDA driver;
+            # that is the normal case on CPU-only machines, not news for the user.
+            with _stderr_silenced():
+                wp.init()
         _initialised = True
     return wp
 

@@ -1,0 +1,156 @@
+"""Label maps: connectivity clean-up, automatic and stroke segmentation."""
+
+import numpy as np
+import pytest
+from scipy import ndimage as ndi
+
+from tpsv.errors import TpsvError
+from tpsv.segment import overlay_regions, segment_auto, segment_strokes, split_connected, stroke_labels
+
+
+def _connected(lab):
+    for v in np.unique(lab):
+        _, n = ndi.label(lab == v)  # 4-connectivity
+        if n != 1:
+            return False
+    return True
+
+
+def _synthetic(seed=0, h=96, w=128):
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    img = np.zeros((h, w, 3), np.float32)
+    img[:] = (0.2, 0.3, 0.8)  # sky
+    img[yy > 60 + 6 * np.sin(xx / 10)] = (0.3, 0.6, 0.2)  # grass
+    disc = np.hypot(xx - 40, yy - 35) < 18
+    img[disc] = (0.9, 0.3, 0.2)  # sun
+    img += rng.normal(0, 0.03, img.shape).astype(np.float32)
+    truth = np.zeros((h, w), np.int32)
+    truth[yy > 60 + 6 * np.sin(xx / 10)] = 1
+    truth[disc] = 2
+    return np.clip(img, 0, 1), truth
+
+
+def test_split_connected_relabels_components():
+    lab = np.zeros((10, 10), np.int32)
+    lab[2:4, 2:4] = 5
+    lab[6:9, 6:9] = 5  # same label, second component
+    lab[0, 9] = 7  # single pixel
+    out = split_connected(lab, min_size=1)
+    assert out.dtype == np.int32
+    assert set(np.unique(out)) == set(range(4))
+    assert _connected(out)
+    assert out[0, 9] != out[1, 9]  # the single pixel survives with min_size=1
+
+
+def test_split_connected_diagonal_is_two_regions():
+    lab = np.zeros((4, 4), np.int32)
+    lab[0, 0] = 1
+    lab[1, 1] = 1
+    out = split_connected(lab, min_size=1)
+    assert out[0, 0] != out[1, 1]
+
+
+def test_split_connected_merges_tiny_into_longest_border():
+    lab = np.zeros((20, 20), np.int32)
+    lab[:, 10:] = 1
+    lab[5:7, 9:12] = 2  # 6 px blob, borders: 2 with label 0, 4 with label 1 -> goes to 1
+    lab[15, 15] = 3
+    out = split_connected(lab, min_size=10)
+    assert out.max() == 1
+    assert out[5, 9] == out[0, 19] and out[15, 15] == out[0, 19]
+    # protected pixels keep their component
+    keep = np.zeros_like(lab, bool)
+    keep[15, 15] = True
+    out2 = split_connected(lab, min_size=10, keep=keep)
+    assert out2.max() == 2 and out2[15, 15] not in (out2[0, 0], out2[0, 19])
+
+
+def test_split_connected_slivers():
+    lab = np.zeros((40, 40), np.int32)
+    lab[:, 20:] = 1
+    lab[:, 19] = 2  # 1-px-wide column, 40 px
+    out = split_connected(lab, min_size=10, sliver_width=1.5)
+    assert out.max() == 1
+    assert split_connected(lab, min_size=10).max() == 2
+
+
+def test_segment_auto_synthetic():
+    img, truth = _synthetic()
+    lab = segment_auto(img, n_regions=3)
+    assert lab.shape == truth.shape and lab.dtype == np.int32
+    assert _connected(lab)
+    assert 2 <= lab.max() + 1 <= 4
+    # each true region is mostly one label
+    for k in range(3):
+        counts = np.bincount(lab[truth == k])
+        assert counts.max() / counts.sum() > 0.9
+    # deterministic
+    assert np.array_equal(lab, segment_auto(img, n_regions=3))
+
+
+def test_segment_auto_default_count():
+    from skimage import data
+    from skimage.transform import rescale
+
+    img = rescale(data.coffee(), 0.25, channel_axis=2, anti_aliasing=True).astype(np.float32)
+    lab = segment_auto(img)
+    assert 3 <= lab.max() + 1 <= 14  # chosen in 4..12, then tiny pieces merged/split
+    assert _connected(lab)
+    lab6 = segment_auto(img, n_regions=6)
+    assert 4 <= lab6.max() + 1 <= 8  # approximately the count asked for
+
+
+def _strokes(h=96, w=128):
+    s = np.zeros((h, w, 3), np.uint8)
+    s[10:12, 80:110] = (0, 0, 255)  # sky
+    s[85, 10:120] = (0, 255, 0)  # grass, 1 px thick
+    s[30:40, 38:42] = (255, 0, 0)  # sun
+    return s
+
+
+def test_segment_strokes_honoured_and_connected():
+    img, truth = _synthetic()
+    s = _strokes()
+    lab = segment_strokes(img, s)
+    assert _connected(lab)
+    markers, cols = stroke_labels(s)
+    assert cols == sorted(cols)
+    # strokes honoured pixel for pixel: one region per stroke colour here
+    for k in range(len(cols)):
+        assert len(np.unique(lab[markers == k])) == 1
+    regs = [lab[markers == k][0] for k in range(len(cols))]
+    assert len(set(regs)) == len(cols)
+    # and the segmentation follows the objects
+    agree = np.mean([np.bincount(lab[truth == k]).max() / np.count_nonzero(truth == k) for k in range(3)])
+    assert agree > 0.95
+
+
+def test_segment_strokes_single_pixel_stroke_survives():
+    img, _ = _synthetic()
+    s = _strokes()
+    s[50, 100] = (9, 9, 9)  # a stroke colour of its own, one pixel inside the sky
+    lab = segment_strokes(img, s)
+    assert _connected(lab)
+    r = lab[50, 100]
+    assert r != lab[10, 90]
+
+
+@pytest.mark.parametrize(
+    "make, msg",
+    [
+        (lambda s: np.zeros_like(s), "no strokes"),
+        (lambda s: np.repeat(np.where(s.any(axis=2, keepdims=True), 255, 0), 3, axis=2).astype(np.uint8), "only one"),
+        (lambda s: s[:-1], "but the image"),
+    ],
+)
+def test_segment_strokes_errors(make, msg):
+    img, _ = _synthetic()
+    with pytest.raises(TpsvError, match=msg):
+        segment_strokes(img, make(_strokes()))
+
+
+def test_overlay_regions():
+    img, truth = _synthetic()
+    out = overlay_regions(img, truth)
+    assert out.shape == img.shape and out.dtype == np.uint8

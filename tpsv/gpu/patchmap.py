@@ -1,0 +1,381 @@
+"""Pixel -> normalised patch parameters (S, T), as Warp kernels (cpu and cuda).
+
+This is ``tpsv.patch.inverse`` for every output pixel at once, one thread per
+pixel, in float32. Layout (:class:`PatchSet`), all flat device arrays:
+
+* ``coef``: per cell of every patch, the 16 power-basis coefficients
+  ``K[p, q]`` (vec2) of ``M(u, v) = sum K[p, q] u^p v^q``
+  (``tpsv.patch.coefficients``), cells in row-major ``(i, j)`` order;
+* ``pos``: control-point positions (vec2), row-major ``(i, j)``;
+* ``reg_i`` (R, 4) int32: ``M, N, pos offset, coef offset``;
+* ``reg_f`` (R, 7) float32: ``affine flag, O (2), A^-1 (4)``; an exactly affine
+  patch (fresh from ``build_patch``) is inverted in closed form.
+
+Other patches: the same algorithm as ``tpsv.patch.inverse``: a walk over the
+control-point quads from the bilinear guess of the four patch corners locates
+the cell, ``n_itr`` levels of 2D binary search (stopping once the centre of
+the square is within ``t_loc`` px), then up to ``newton`` Newton steps on the
+global surface (stopping within 1e-4 px)
+(the border cell's cubic is extrapolated outside the domain). The result is
+normalised, ``S = s / (M-1)``, ``T = t / (N-1)``, clamped to ``[0, 1]``.
+
+Output pixel ``(X, Y)`` of an ``H x W`` index map samples source point
+``((X + 0.5) * Ws / W, (Y + 0.5) * Hs / H)`` where ``(Ws, Hs) = src_size``, as
+in ``tpsv.outline.rasterize_regions``. Pixels with a negative index get
+``(-1, -1)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import warp
+from ..patch import affine_frame, coefficients
+
+wp = warp()
+
+
+@wp.func
+def _horner(coef: wp.array(dtype=wp.vec2), base: int, u: float, v: float):
+    # value, d/du, d/dv of sum K[p, q] u^p v^q (K row-major p, q at base)
+    val = wp.vec2(0.0, 0.0)
+    du = wp.vec2(0.0, 0.0)
+    dv = wp.vec2(0.0, 0.0)
+    for pp in range(4):
+        p = 3 - pp
+        k0 = coef[base + p * 4 + 0]
+        k1 = coef[base + p * 4 + 1]
+        k2 = coef[base + p * 4 + 2]
+        k3 = coef[base + p * 4 + 3]
+        kv = k0 + v * (k1 + v * (k2 + v * k3))
+        kdv = k1 + v * (2.0 * k2 + 3.0 * v * k3)
+        du = du * u + val
+        val = val * u + kv
+        dv = dv * u + kdv
+    return val, du, dv
+
+
+@wp.func
+def _cell(x: float, n: int):
+    return wp.clamp(int(wp.floor(x)), 0, n - 2)
+
+
+@wp.func
+def _surface(coef: wp.array(dtype=wp.vec2), coff: int, M: int, N: int, s: float, t: float):
+    i = _cell(s, M)
+    j = _cell(t, N)
+    return _horner(coef, coff + (i * (N - 1) + j) * 16, s - float(i), t - float(j))
+
+
+@wp.func
+def _bilin(A: wp.vec2, B: wp.vec2, C: wp.vec2, D: wp.vec2, p: wp.vec2, iters: int):
+    # local (a, b) of p in the bilinear quad A(0,0) B(1,0) C(0,1) D(1,1)
+    e = B - A
+    f = C - A
+    g = A - B - C + D
+    a = float(0.5)
+    b = float(0.5)
+    for _k in range(iters):
+        r = A + a * e + b * f + (a * b) * g - p
+        ja = e + b * g
+        jb = f + a * g
+        det = ja[0] * jb[1] - ja[1] * jb[0]
+        if wp.abs(det) < 1.0e-12:
+            det = 1.0e-12
+        da = (r[0] * jb[1] - r[1] * jb[0]) / det
+        db = (ja[0] * r[1] - ja[1] * r[0]) / det
+        a = wp.clamp(a - da, -4.0, 5.0)
+        b = wp.clamp(b - db, -4.0, 5.0)
+    return wp.vec2(a, b)
+
+
+@wp.func
+def _outside(ab: wp.vec2):
+    return wp.max(wp.max(wp.max(0.0, -ab[0]), ab[0] - 1.0), wp.max(-ab[1], ab[1] - 1.0))
+
+
+@wp.func
+def _solve(
+    r: int,
+    p: wp.vec2,
+    pos: wp.array(dtype=wp.vec2),
+    coef: wp.array(dtype=wp.vec2),
+    reg_i: wp.array2d(dtype=wp.int32),
+    reg_f: wp.array2d(dtype=wp.float32),
+    t_loc: float,
+    n_itr: int,
+    n_newton: int,
+):
+    M = reg_i[r, 0]
+    N = reg_i[r, 1]
+    poff = reg_i[r, 2]
+    coff = reg_i[r, 3]
+    fm = float(M - 1)
+    fn = float(N - 1)
+    if reg_f[r, 0] > 0.5:
+        d = p - wp.vec2(reg_f[r, 1], reg_f[r, 2])
+        s = reg_f[r, 3] * d[0] + reg_f[r, 4] * d[1]
+        t = reg_f[r, 5] * d[0] + reg_f[r, 6] * d[1]
+        return wp.vec2(wp.clamp(s / fm, 0.0, 1.0), wp.clamp(t / fn, 0.0, 1.0))
+    # locate the cell: bilinear guess from the patch corners, then walk over quads
+    g = _bilin(pos[poff], pos[poff + (M - 1) * N], pos[poff + N - 1], pos[poff + M * N - 1], p, 5)
+    i = wp.clamp(int(wp.floor(g[0] * fm)), 0, M - 2)
+    j = wp.clamp(int(wp.floor(g[1] * fn)), 0, N - 2)
+    for _w in range(M + N):
+        q = poff + i * N + j
+        ab = _bilin(pos[q], pos[q + N], pos[q + 1], pos[q + N + 1], p, 5)
+        di = int(0)
+        dj = int(0)
+        if ab[0] < 0.0 and i > 0:
+            di = -1
+        if ab[0] > 1.0 and i < M - 2:
+            di = 1
+        if ab[1] < 0.0 and j > 0:
+            dj = -1
+        if ab[1] > 1.0 and j < N - 2:
+            dj = 1
+        if di == 0 and dj == 0:
+            break
+        i = i + di
+        j = j + dj
+    base = coff + (i * (N - 1) + j) * 16
+    # 2D binary search in the cell
+    u0 = float(0.0)
+    v0 = float(0.0)
+    h = float(1.0)
+    q00, d0, d1 = _horner(coef, base, 0.0, 0.0)
+    q20, d0, d1 = _horner(coef, base, 1.0, 0.0)
+    q02, d0, d1 = _horner(coef, base, 0.0, 1.0)
+    q22, d0, d1 = _horner(coef, base, 1.0, 1.0)
+    for _l in range(n_itr):
+        h2 = 0.5 * h
+        q10, d0, d1 = _horner(coef, base, u0 + h2, v0)
+        q01, d0, d1 = _horner(coef, base, u0, v0 + h2)
+        q11, d0, d1 = _horner(coef, base, u0 + h2, v0 + h2)
+        q21, d0, d1 = _horner(coef, base, u0 + h, v0 + h2)
+        q12, d0, d1 = _horner(coef, base, u0 + h2, v0 + h)
+        if wp.length(q11 - p) < t_loc:
+            break
+        o00 = _outside(_bilin(q00, q10, q01, q11, p, 3))
+        o01 = _outside(_bilin(q01, q11, q02, q12, p, 3))
+        o10 = _outside(_bilin(q10, q20, q11, q21, p, 3))
+        o11 = _outside(_bilin(q11, q21, q12, q22, p, 3))
+        best = o00
+        qa = int(0)
+        qb = int(0)
+        if o01 < best:
+            best = o01
+            qa = 0
+            qb = 1
+        if o10 < best:
+            best = o10
+            qa = 1
+            qb = 0
+        if o11 < best:
+            best = o11
+            qa = 1
+            qb = 1
+        if qa == 0 and qb == 0:
+            q20 = q10
+            q02 = q01
+            q22 = q11
+        if qa == 0 and qb == 1:
+            q00 = q01
+            q20 = q11
+            q22 = q12
+        if qa == 1 and qb == 0:
+            q00 = q10
+            q02 = q11
+            q22 = q21
+        if qa == 1 and qb == 1:
+            q00 = q11
+            q20 = q21
+            q02 = q12
+        u0 = u0 + float(qa) * h2
+        v0 = v0 + float(qb) * h2
+        h = h2
+    s = float(i) + u0 + 0.5 * h
+    t = float(j) + v0 + 0.5 * h
+    # Newton polish on the global surface
+    for _n in range(n_newton):
+        val, ds, dt = _surface(coef, coff, M, N, s, t)
+        res = val - p
+        if wp.length(res) < 1.0e-4:
+            break
+        det = ds[0] * dt[1] - dt[0] * ds[1]
+        if wp.abs(det) < 1.0e-12:
+            det = 1.0e-12
+        es = (res[0] * dt[1] - res[1] * dt[0]) / det
+        et = (ds[0] * res[1] - ds[1] * res[0]) / det
+        nrm = wp.sqrt(es * es + et * et)
+        k = wp.min(1.0, 2.0 / wp.max(nrm, 1.0e-30))
+        s = s - k * es
+        t = t - k * et
+    return wp.vec2(wp.clamp(s / fm, 0.0, 1.0), wp.clamp(t / fn, 0.0, 1.0))
+
+
+@wp.kernel
+def _map_kernel(
+    index: wp.array2d(dtype=wp.int32),
+    pos: wp.array(dtype=wp.vec2),
+    coef: wp.array(dtype=wp.vec2),
+    reg_i: wp.array2d(dtype=wp.int32),
+    reg_f: wp.array2d(dtype=wp.float32),
+    sx: float,
+    sy: float,
+    t_loc: float,
+    n_itr: int,
+    n_newton: int,
+    out: wp.array2d(dtype=wp.vec2),
+):
+    y, x = wp.tid()
+    r = index[y, x]
+    if r < 0:
+        out[y, x] = wp.vec2(-1.0, -1.0)
+        return
+    p = wp.vec2((float(x) + 0.5) * sx, (float(y) + 0.5) * sy)
+    out[y, x] = _solve(r, p, pos, coef, reg_i, reg_f, t_loc, n_itr, n_newton)
+
+
+@wp.kernel
+def _points_kernel(
+    region: wp.array(dtype=wp.int32),
+    xy: wp.array(dtype=wp.vec2),
+    pos: wp.array(dtype=wp.vec2),
+    coef: wp.array(dtype=wp.vec2),
+    reg_i: wp.array2d(dtype=wp.int32),
+    reg_f: wp.array2d(dtype=wp.float32),
+    t_loc: float,
+    n_itr: int,
+    n_newton: int,
+    out: wp.array(dtype=wp.vec2),
+):
+    k = wp.tid()
+    r = region[k]
+    if r < 0:
+        out[k] = wp.vec2(-1.0, -1.0)
+        return
+    out[k] = _solve(r, xy[k], pos, coef, reg_i, reg_f, t_loc, n_itr, n_newton)
+
+
+@dataclass
+class PatchSet:
+    """All patches of a model as flat device arrays (see the module docstring)."""
+
+    pos: object
+    coef: object
+    reg_i: object
+    reg_f: object
+    device: str
+
+    @classmethod
+    def build(cls, patches, device: str = "cpu") -> "PatchSet":
+        pos_l, coef_l = [], []
+        R = len(patches)
+        reg_i = np.zeros((max(R, 1), 4), np.int32)
+        reg_f = np.zeros((max(R, 1), 7), np.float32)
+        po = co = 0
+        for r, patch in enumerate(patches):
+            M, N = patch.shape
+            P = np.asarray(patch.ctrl, np.float64)[..., 0, :].reshape(-1, 2)
+            K = coefficients(patch).reshape(-1, 2)  # (cells * 16, 2) row-major (i, j, p, q)
+            reg_i[r] = (M, N, po, co)
+            frame = affine_frame(patch)
+            if frame is not None:
+                O, A = frame
+                reg_f[r] = (1.0, O[0], O[1], *np.linalg.inv(A).ravel())
+            pos_l.append(P)
+            coef_l.append(K)
+            po += P.shape[0]
+            co += K.shape[0]
+        pos = np.concatenate(pos_l, axis=0) if pos_l else np.zeros((1, 2))
+        coef = np.concatenate(coef_l, axis=0) if coef_l else np.zeros((1, 2))
+        return cls(
+            pos=wp.array(pos.astype(np.float32), dtype=wp.vec2, device=device),
+            coef=wp.array(coef.astype(np.float32), dtype=wp.vec2, device=device),
+            reg_i=wp.array(reg_i, dtype=wp.int32, device=device),
+            reg_f=wp.array(reg_f, dtype=wp.float32, device=device),
+            device=device,
+        )
+
+
+def inverse_map(
+    patches,
+    index,
+    src_size: tuple[int, int],
+    device: str = "cpu",
+    t_loc: float = 0.001,
+    n_itr: int = 8,
+    newton: int = 12,
+    patch_set: PatchSet | None = None,
+):
+    """Normalised ``(S, T)`` of every output pixel, as a device array.
+
+    Parameters
+    ----------
+    patches : list of Patch
+        One per region (``Model.regions[k].patch``); ignored when
+        ``patch_set`` is given.
+    index : ndarray (H, W) int32 or wp.array2d(int32)
+        Region of every output pixel (``tpsv.outline.rasterize_regions``).
+    src_size : (Ws, Hs)
+        Model size; output pixel (X, Y) samples ``((X+0.5) Ws/W, (Y+0.5) Hs/H)``.
+    device : str
+        Warp device (``cpu``, ``cuda``, ``cuda:N``).
+
+    Returns
+    -------
+    wp.array2d(dtype=wp.vec2), shape (H, W), on ``device``.
+    """
+    ps = patch_set if patch_set is not None else PatchSet.build(patches, device)
+    device = ps.device
+    if not isinstance(index, wp.array):
+        index = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=device)
+    H, W = index.shape
+    out = wp.empty((H, W), dtype=wp.vec2, device=device)
+    sx = float(src_size[0]) / float(W)
+    sy = float(src_size[1]) / float(H)
+    wp.launch(
+        _map_kernel,
+        dim=(H, W),
+        inputs=[index, ps.pos, ps.coef, ps.reg_i, ps.reg_f, sx, sy, float(t_loc), int(n_itr), int(newton)],
+        outputs=[out],
+        device=device,
+    )
+    return out
+
+
+def inverse_map_numpy(patches, index, src_size, device: str = "cpu", **kw) -> np.ndarray:
+    """:func:`inverse_map` copied to the host: ndarray (H, W, 2) float32."""
+    return inverse_map(patches, index, src_size, device=device, **kw).numpy().reshape(np.shape(index) + (2,))
+
+
+def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.001, n_itr: int = 8, newton: int = 12) -> np.ndarray:
+    """Normalised ``(S, T)`` of arbitrary points ``xy`` (n, 2) in regions ``region`` (n,); ndarray (n, 2)."""
+    ps = PatchSet.build(patches, device)
+    xy = np.ascontiguousarray(xy, np.float32).reshape(-1, 2)
+    region = np.ascontiguousarray(region, np.int32).reshape(-1)
+    n = xy.shape[0]
+    if n == 0:
+        return np.zeros((0, 2), np.float32)
+    out = wp.empty(n, dtype=wp.vec2, device=device)
+    wp.launch(
+        _points_kernel,
+        dim=n,
+        inputs=[
+            wp.array(region, dtype=wp.int32, device=device),
+            wp.array(xy, dtype=wp.vec2, device=device),
+            ps.pos,
+            ps.coef,
+            ps.reg_i,
+            ps.reg_f,
+            float(t_loc),
+            int(n_itr),
+            int(newton),
+        ],
+        outputs=[out],
+        device=device,
+    )
+    return out.numpy().reshape(n, 2)
