@@ -1,0 +1,276 @@
+"""render: model -> pixels (outline membership, patch map, kernels, blend)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tpsv import render, tps
+from tpsv.color import lab_to_srgb, srgb_to_lab
+from tpsv.errors import TpsvError
+from tpsv.model import Features, Model, Params, Patch, Region
+
+
+def rect_patch(x0, y0, w, h, M=3, N=3) -> Patch:
+    ii, jj = np.meshgrid(np.arange(M, dtype=float), np.arange(N, dtype=float), indexing="ij")
+    a = np.array([w / (M - 1), 0.0])
+    b = np.array([0.0, h / (N - 1)])
+    ctrl = np.zeros((M, N, 4, 2))
+    ctrl[..., 0, :] = np.array([x0, y0]) + ii[..., None] * a + jj[..., None] * b
+    ctrl[..., 1, :] = a
+    ctrl[..., 2, :] = b
+    return Patch(ctrl)
+
+
+def rect_model(rects, feats, width, height, **params) -> Model:
+    """Regions = rectangles (x0, y0, w, h); feats = list of (region, xy pixels (n, 2), lab (n, 3))."""
+    regions = []
+    for i, (x0, y0, w, h) in enumerate(rects):
+        poly = np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h]], float)
+        regions.append(Region(i, [poly], rect_patch(x0, y0, w, h)))
+    reg, st, lab = [], [], []
+    for r, xy, v in feats:
+        x0, y0, w, h = rects[r]
+        reg.append(np.full(len(xy), r, np.int32))
+        st.append((np.asarray(xy, float) - [x0, y0]) / [w, h])
+        lab.append(np.asarray(v, np.float32))
+    n = sum(len(r) for r in reg)
+    F = Features(
+        np.concatenate(reg) if reg else np.zeros(0, np.int32),
+        np.concatenate(st) if st else np.zeros((0, 2)),
+        np.concatenate(lab) if lab else np.zeros((0, 3), np.float32),
+        np.zeros(n, np.uint8),
+        np.full(n, -1, np.int32),
+    )
+    return Model(width, height, regions, F, Params(**params))
+
+
+def field_rgb(x, y):
+    """A smooth sRGB field."""
+    return np.stack(
+        [0.5 + 0.35 * np.sin(x / 11.0) * np.cos(y / 13.0), 0.5 + 0.3 * np.cos((x + y) / 17.0), 0.45 + 0.3 * np.sin(y / 9.0)],
+        axis=-1,
+    )
+
+
+def grid_feats(x0, y0, w, h, step=2.0):
+    xs = np.arange(x0 + step / 2, x0 + w, step)
+    ys = np.arange(y0 + step / 2, y0 + h, step)
+    X, Y = np.meshgrid(xs, ys)
+    xy = np.column_stack([X.ravel(), Y.ravel()])
+    return xy, srgb_to_lab(field_rgb(xy[:, 0], xy[:, 1]))
+
+
+def psnr(a, b):
+    return -10 * np.log10(np.mean((np.asarray(a, float) - np.asarray(b, float)) ** 2))
+
+
+# --------------------------------------------------------------------------- sizes
+
+
+def test_output_size():
+    m = rect_model([(0, 0, 40, 30)], [], 40, 30)
+    assert render.output_size(m) == (40, 30)
+    assert render.output_size(m, scale=2.5) == (100, 75)
+    assert render.output_size(m, width=80) == (80, 60)
+    assert render.output_size(m, height=15) == (20, 15)
+    assert render.output_size(m, width=7, height=9) == (7, 9)
+    for kw in (
+        dict(scale=0),
+        dict(scale=-1),
+        dict(scale=float("nan")),
+        dict(scale=float("inf")),
+        dict(scale="x"),
+        dict(width=0, height=5),
+        dict(width=-3),
+        dict(width=2.5),
+        dict(width=render.MAX_SIDE + 1, height=1),
+        dict(scale=1000),
+        dict(scale=2, width=10),
+        dict(scale=0.001),
+    ):
+        with pytest.raises(TpsvError):
+            render.output_size(m, **kw)
+
+
+def test_render_rejects_bad_sizes():
+    m = rect_model([(0, 0, 40, 30)], [], 40, 30)
+    with pytest.raises(TpsvError):
+        render.render(m, scale=0)
+    with pytest.raises(TpsvError):
+        render.render(m, width=20000, height=10)
+
+
+# --------------------------------------------------------------------------- fidelity
+
+
+@pytest.fixture(scope="module")
+def smooth_model():
+    rects = [(0, 0, 32, 48), (32, 0, 32, 48)]
+    feats = [(r, *grid_feats(*rects[r])) for r in range(2)]
+    return rect_model(rects, feats, 64, 48, kernel_size=32)
+
+
+def test_smooth_field_reproduced(smooth_model):
+    img = render.render(smooth_model)
+    assert img.shape == (48, 64, 3) and img.dtype == np.float32
+    assert img.min() >= 0 and img.max() <= 1
+    yy, xx = np.mgrid[0:48, 0:64] + 0.5
+    truth = field_rgb(xx, yy)
+    assert psnr(img, truth) > 40
+    assert np.abs(img - truth).max() < 0.03
+
+
+def test_magnified_smooth_field(smooth_model):
+    img = render.render(smooth_model, scale=3)
+    assert img.shape == (144, 192, 3)
+    yy, xx = (np.mgrid[0:144, 0:192] + 0.5) / 3
+    assert psnr(img, field_rgb(xx, yy)) > 40
+
+
+def _seam_model(overlap):
+    rng = np.random.default_rng(3)
+    xy = rng.random((1600, 2)) * [96, 64]
+    lab = srgb_to_lab(field_rgb(xy[:, 0], xy[:, 1])) + rng.normal(0, 3, (1600, 3)).astype(np.float32)
+    return rect_model([(0, 0, 96, 64)], [(0, xy, lab)], 96, 64, kernel_size=32, overlap=overlap)
+
+
+def _border_jumps(img, ks, scale):
+    """Horizontal and vertical neighbour jumps straddling sub-patch borders, and all others."""
+    gx, gy, _ = ks.grid[0]
+    H, W = img.shape[:2]
+    dx = np.abs(np.diff(img, axis=1)).max(-1)  # between x and x+1
+    dy = np.abs(np.diff(img, axis=0)).max(-1)
+    bx = np.zeros(W - 1, bool)
+    by = np.zeros(H - 1, bool)
+    for i in range(1, gx):
+        X = i * W / gx  # border position in output pixels
+        bx[int(np.floor(X - 0.5))] = True  # pixel centres x+0.5 < X < x+1.5
+    for j in range(1, gy):
+        Y = j * H / gy
+        by[int(np.floor(Y - 0.5))] = True
+    border = np.concatenate([dx[:, bx].ravel(), dy[by, :].ravel()])
+    inner = np.concatenate([dx[:, ~bx].ravel(), dy[~by, :].ravel()])
+    return border, inner
+
+
+@pytest.mark.parametrize("overlap", [0.5, 0.25])
+def test_no_seam(overlap):
+    m = _seam_model(overlap)
+    ks = tps.group_kernels(m)
+    assert ks.grid[0, 0] >= 3 and ks.grid[0, 1] >= 2
+    for scale in (1, 4):
+        img = render.render(m, scale=scale, kernels=ks)
+        border, inner = _border_jumps(img, ks, scale)
+        assert border.max() <= 1.2 * inner.max()
+        assert np.median(border) <= 2.0 * np.median(inner)
+        assert np.percentile(border, 95) <= 1.5 * np.percentile(inner, 95)
+
+
+def test_seam_check_is_sensitive():
+    """Without blending (overlap 0) the same check sees the seams."""
+    m = _seam_model(0.0)
+    ks = tps.group_kernels(m)
+    img = render.render(m, scale=4, kernels=ks)
+    border, inner = _border_jumps(img, ks, 4)
+    assert np.percentile(border, 95) > 1.5 * np.percentile(inner, 95)
+
+
+def test_regions_never_mix():
+    rng = np.random.default_rng(5)
+    rects = [(0, 0, 30, 40), (30, 0, 26, 40)]
+    feats = []
+    for r, (x0, y0, w, h) in enumerate(rects):
+        xy = rng.random((300, 2)) * [w, h] + [x0, y0]
+        feats.append((r, xy, srgb_to_lab(field_rgb(xy[:, 0] * (r + 1), xy[:, 1]))))
+    m = rect_model(rects, feats, 56, 40, kernel_size=32)
+    for scale in (1, 3):
+        a = render.render(m, scale=scale)
+        lab = m.features.lab.copy()
+        lab[5] = [90.0, -40.0, 60.0]  # a feature of region 0
+        lab[17] += 20.0
+        m2 = Model(m.width, m.height, m.regions, Features(m.features.region, m.features.st, lab, m.features.kind, m.features.pair), m.params)
+        b = render.render(m2, scale=scale)
+        W = a.shape[1]
+        right = slice(int(np.ceil(30 * scale)), W)
+        assert np.array_equal(a[:, right], b[:, right])
+        assert not np.array_equal(a[:, : 30 * scale], b[:, : 30 * scale])
+
+
+def test_region_border_stays_sharp():
+    """Two flat regions: at 4x the border is a one-pixel step, with no blending across it."""
+    rects = [(0, 0, 20, 16), (20, 0, 12, 16)]
+    ca = np.array([30.0, 20.0, -10.0])
+    cb = np.array([80.0, -20.0, 40.0])
+    feats = [(0, *(lambda xy: (xy, np.tile(ca, (len(xy), 1))))(grid_feats(*rects[0], step=3)[0])),
+             (1, *(lambda xy: (xy, np.tile(cb, (len(xy), 1))))(grid_feats(*rects[1], step=3)[0]))]
+    m = rect_model(rects, feats, 32, 16, kernel_size=16)
+    img = render.render(m, scale=4)
+    left = lab_to_srgb(ca)
+    right = lab_to_srgb(cb)
+    assert np.abs(img[:, :80] - left).max() < 2e-3
+    assert np.abs(img[:, 80:] - right).max() < 2e-3
+
+
+def test_featureless_region_and_empty_model():
+    rects = [(0, 0, 20, 16), (20, 0, 12, 16)]
+    xy, lab = grid_feats(*rects[0], step=3)
+    m = rect_model(rects, [(0, xy, lab)], 32, 16, kernel_size=16)
+    img = render.render(m)
+    fill = lab_to_srgb(lab.astype(np.float64).mean(0))
+    assert np.abs(img[:, 20:] - fill).max() < 2e-3
+    assert np.isfinite(img).all()
+    empty = rect_model(rects, [], 32, 16)
+    img = render.render(empty, scale=2)
+    assert img.shape == (32, 64, 3)
+    assert np.abs(img - lab_to_srgb(np.array([50.0, 0, 0]))).max() < 2e-3
+
+
+def test_deterministic(smooth_model):
+    a = render.render(smooth_model, scale=2)
+    b = render.render(smooth_model, scale=2)
+    c = render.render(smooth_model, scale=2, threads=1)
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+
+
+def test_render_timed(smooth_model):
+    img, t = render.render_timed(smooth_model, scale=1, repeat=1)
+    assert img.shape == (48, 64, 3)
+    for key in ("regions", "patchmap", "group", "upload", "solve", "rasterise", "download", "total"):
+        assert key in t and t[key] >= 0
+
+
+def test_kernels_must_match_model(smooth_model):
+    other = rect_model([(0, 0, 10, 10)], [], 10, 10)
+    ks = tps.group_kernels(other)
+    with pytest.raises(TpsvError):
+        render.render(smooth_model, kernels=ks)
+
+
+def test_range_clamp():
+    """Close pairs across a step make the TPS overshoot; the clamp keeps every kernel in its range."""
+    from tpsv.gpu import tps as gtps
+
+    rng = np.random.default_rng(11)
+    t = np.arange(0.5, 48)
+    a = np.column_stack([t, 16.0 - 0.5 + 0 * t])
+    b = np.column_stack([t, 16.0 + 0.5 + 0 * t])
+    g = rng.random((40, 2)) * [48, 32]
+    xy = np.vstack([a, b, g])
+    lab = np.vstack([np.tile([20.0, 30, 0], (48, 1)), np.tile([80.0, -30, 40], (48, 1)),
+                     np.where(g[:, 1:] < 16, [20.0, 30, 0], [80.0, -30, 40])]) + rng.normal(0, 2, (136, 3))
+    m = rect_model([(0, 0, 48, 32)], [(0, xy, lab)], 48, 32, kernel_size=32)
+    ks = tps.group_kernels(m)
+    yy, xx = np.mgrid[0:128, 0:192] + 0.5
+    st = np.stack([xx / 192, yy / 128], -1).astype(np.float32)
+    reg = np.zeros((128, 192), np.int32)
+    raw = gtps.render_arrays(ks, reg, st, mode=gtps.MODE_LAB, clamp=False)
+    cl = gtps.render_arrays(ks, reg, st, mode=gtps.MODE_LAB, clamp=True)
+    lo, hi = ks.lab.min(0), ks.lab.max(0)
+    assert (raw < lo - 1).any() or (raw > hi + 1).any()  # the plain TPS overshoots here
+    assert (cl >= lo - 1e-3).all() and (cl <= hi + 1e-3).all()
+    # where no kernel clamps, both agree
+    same = np.abs(cl - raw).max(-1) < 1e-6
+    assert same.mean() > 0.1
+    # still continuous: no jump larger than the step between the two sides allows
+    assert np.abs(np.diff(cl, axis=1)).max() < 20
