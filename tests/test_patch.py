@@ -284,3 +284,17 @@ def test_preview_draws_grids_outlines_features():
     p = forward(reg[1].patch, *denormalize(reg[1].patch, f.st[2]))
     c = img[int(round(p[1] * 2)), int(round(p[0] * 2))]
     assert c[1] > 150 and c[0] < 100
+
+
+def test_new_patch_survives_codec_quantisation_exactly():
+    """A fresh patch lies on the codec's 1/16 px grid, so a decoded one is still affine."""
+    from tpsv.codec.quant import CTRL_SCALE
+    from tpsv.patch import GRID_QUANTUM, affine_frame, build_patch
+
+    assert CTRL_SCALE == GRID_QUANTUM
+    yy, xx = np.mgrid[:60, :80]
+    mask = (xx - 37.3) ** 2 / 900 + (yy - 29.1) ** 2 / 300 < 1 + 0.3 * np.sin(xx / 5.0)
+    p = build_patch(mask)
+    q = np.round(p.ctrl * CTRL_SCALE) / CTRL_SCALE
+    assert np.array_equal(q, p.ctrl)
+    assert affine_frame(p) is not None

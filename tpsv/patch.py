@@ -478,6 +478,20 @@ def _min_area_rect(mask: np.ndarray, outline=None):
 
 #: Padding (px) added around the minimum-area rectangle on every side.
 PAD = 1.0
+#: Control vectors of a new patch are multiples of 1 / GRID_QUANTUM px (the codec's quantum).
+GRID_QUANTUM = 16
+
+
+def _covers(mask, O, a, b, M, N) -> bool:
+    """Whether every pixel corner of ``mask`` maps inside the affine grid's domain."""
+    if mask is None or not mask.any():
+        return True
+    r, c = np.nonzero(mask)
+    corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
+    st = np.linalg.solve(np.stack([a, b], 1), (corners - O).T).T
+    eps = 1e-9
+    return bool((st[:, 0] >= -eps).all() and (st[:, 0] <= M - 1 + eps).all()
+                and (st[:, 1] >= -eps).all() and (st[:, 1] <= N - 1 + eps).all())
 
 
 def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = None, n_features: int | None = None) -> Patch:
@@ -532,9 +546,18 @@ def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = N
         M, N = int(grid[0]), int(grid[1])
         if M < 2 or N < 2:
             raise TpsvError(f"patch grid {M}x{N} is too small (at least 2x2)")
-    a = e1 * (L1 / (M - 1))
-    b = e2 * (L2 / (N - 1))
-    O = c - e1 * (L1 / 2) - e2 * (L2 / 2)
+    # Snap the grid to the file's control-vector quantum (1/16 px) so that the
+    # patch a decoder reads back is still exactly affine (closed-form inverse);
+    # grow the rectangle until every pixel square of the region is inside.
+    q = float(GRID_QUANTUM)
+    for _ in range(8):
+        a = np.round(e1 * (L1 / (M - 1)) * q) / q
+        b = np.round(e2 * (L2 / (N - 1)) * q) / q
+        O = np.round((c - a * (M - 1) / 2 - b * (N - 1) / 2) * q) / q
+        if _covers(mask, O, a, b, M, N):
+            break
+        L1 += 1.0
+        L2 += 1.0
     ii, jj = np.meshgrid(np.arange(M, dtype=np.float64), np.arange(N, dtype=np.float64), indexing="ij")
     ctrl = np.zeros((M, N, 4, 2), np.float64)
     ctrl[..., 0, :] = O + ii[..., None] * a + jj[..., None] * b

@@ -1,0 +1,166 @@
+"""The command line: exit codes, one-line errors, atomic outputs, JSON summaries."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tpsv import __version__
+from tpsv.cli import main
+
+
+def run(*args, input=None):
+    return CliRunner().invoke(main, [str(a) for a in args], input=input, catch_exceptions=False)
+
+
+def assert_one_line_error(result, code=1):
+    assert result.exit_code == code, result.output
+    err = result.stderr.strip().splitlines()
+    assert len(err) == 1, result.stderr
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture(scope="module")
+def tpsv_file(tmp_path_factory, small_png):
+    out = tmp_path_factory.mktemp("cli") / "small.tpsv"
+    r = run("vectorize", small_png, "-o", out, "--no-search")
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_version_and_help():
+    r = run("--version")
+    assert r.exit_code == 0 and __version__ in r.output
+    r = run("--help")
+    assert r.exit_code == 0
+    for cmd in ("segment", "vectorize", "render", "magnify", "info"):
+        assert cmd in r.output
+
+
+def test_vectorize_json(tmp_path, small_png):
+    out = tmp_path / "a.tpsv"
+    r = run("vectorize", small_png, "-o", out, "--no-search", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    for key in ("width", "height", "regions", "features", "bytes", "psnr", "seconds"):
+        assert key in s
+    assert s["bytes"] == out.stat().st_size
+    assert s["features"] > 0 and s["psnr"] > 15
+
+
+def test_info_json(tpsv_file):
+    r = run("info", tpsv_file, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["bytes"] == tpsv_file.stat().st_size
+    assert s["width"] == 64 and s["regions"] >= 1 and s["features"] > 0
+    assert sum(s["sections"].values()) <= s["bytes"]
+
+
+def test_render_scale_and_size(tmp_path, tpsv_file, small_rgb):
+    h, w = small_rgb.shape[:2]
+    out = tmp_path / "x2.png"
+    assert run("render", tpsv_file, "-o", out, "--scale", 2).exit_code == 0
+    assert cv2.imread(str(out)).shape[:2] == (2 * h, 2 * w)
+    out = tmp_path / "sized.png"
+    assert run("render", tpsv_file, "-o", out, "--size", "50x30").exit_code == 0
+    assert cv2.imread(str(out)).shape[:2] == (30, 50)
+
+
+def test_magnify_raster_and_tpsv(tmp_path, tpsv_file, small_png, small_rgb):
+    h, w = small_rgb.shape[:2]
+    for src in (tpsv_file, small_png):
+        out = tmp_path / "m.png"
+        r = run("magnify", src, "-o", out, "--factor", 3)
+        assert r.exit_code == 0, r.output
+        assert cv2.imread(str(out)).shape[:2] == (3 * h, 3 * w)
+
+
+def test_usage_errors_exit_2(tmp_path, tpsv_file):
+    assert run("render", tpsv_file).exit_code == 2  # no -o
+    assert run("render", tpsv_file, "-o", tmp_path / "a.png", "--scale", 2, "--size", "4x4").exit_code == 2
+    assert run("render", tpsv_file, "-o", tmp_path / "a.png", "--size", "big").exit_code == 2
+    assert run("render", tpsv_file, "-o", tmp_path / "a.png", "--scale", -1).exit_code == 2
+    assert run("nonsense").exit_code == 2
+
+
+def _bad_inputs(tmp_path, small_rgb):
+    text = tmp_path / "notes.png"
+    text.write_text("this is not an image\n")
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.zeros((1, 1, 3), np.uint8))
+    deep = tmp_path / "deep.png"
+    cv2.imwrite(str(deep), (small_rgb[:, :, ::-1] * 65535).astype(np.uint16))
+    rgba = tmp_path / "rgba.png"
+    a = np.dstack([np.round(small_rgb * 255).astype(np.uint8), np.full(small_rgb.shape[:2], 128, np.uint8)])
+    cv2.imwrite(str(rgba), a)
+    return {"text": text, "tiny": tiny, "deep": deep, "rgba": rgba}
+
+
+@pytest.mark.parametrize("kind", ["text", "tiny", "deep", "rgba"])
+def test_bad_images_one_line_no_output(tmp_path, small_rgb, kind):
+    src = _bad_inputs(tmp_path, small_rgb)[kind]
+    out = tmp_path / "out.tpsv"
+    r = run("vectorize", src, "-o", out, "--no-search")
+    assert_one_line_error(r)
+    assert not out.exists()
+    assert not list(tmp_path.glob(".out.tpsv.*"))
+
+
+def test_failed_run_never_clobbers(tmp_path, small_rgb):
+    src = _bad_inputs(tmp_path, small_rgb)["text"]
+    out = tmp_path / "keep.tpsv"
+    out.write_bytes(b"precious")
+    assert_one_line_error(run("vectorize", src, "-o", out))
+    assert out.read_bytes() == b"precious"
+
+
+def test_wrong_size_labels(tmp_path, small_png):
+    lab = tmp_path / "labels.png"
+    cv2.imwrite(str(lab), np.zeros((5, 7), np.uint8))
+    r = run("vectorize", small_png, "-o", tmp_path / "o.tpsv", "--labels", lab, "--no-search")
+    assert_one_line_error(r)
+    assert "label map" in r.stderr
+
+
+def test_labels_with_missing_values(tmp_path, small_png, small_labels):
+    lab = tmp_path / "labels.png"
+    cv2.imwrite(str(lab), (small_labels * 3).astype(np.uint8))  # values 0 and 3: 1 and 2 are empty
+    out = tmp_path / "o.tpsv"
+    r = run("vectorize", small_png, "-o", out, "--labels", lab, "--no-search", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["regions"] == 2
+
+
+@pytest.mark.parametrize("cut", [0, 5, 20, -10])
+def test_truncated_tpsv(tmp_path, tpsv_file, cut):
+    data = tpsv_file.read_bytes()
+    bad = tmp_path / "bad.tpsv"
+    bad.write_bytes(data[:cut] if cut >= 0 else data[:cut])
+    for args in (("info", bad), ("render", bad, "-o", tmp_path / "r.png")):
+        r = run(*args)
+        assert_one_line_error(r)
+    assert not (tmp_path / "r.png").exists()
+
+
+def test_subprocess_end_to_end(tmp_path, tpsv_file):
+    r = subprocess.run([sys.executable, "-m", "tpsv", "info", str(tpsv_file), "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["bytes"] == tpsv_file.stat().st_size
+    r = subprocess.run([sys.executable, "-m", "tpsv", "info", str(tmp_path / "missing.tpsv")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode in (1, 2) and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_render_stdout(tpsv_file):
+    r = CliRunner().invoke(main, ["render", str(tpsv_file), "-o", "-"])
+    assert r.exit_code == 0
+    assert r.stdout_bytes[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,341 @@
+"""The benchmark behind ``tpsv bench``: timing and quality tables in the style of
+the paper's Tables I-III, a rate-distortion plot, and the magnification test.
+
+Every figure here is measured when the benchmark runs; nothing is copied in.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from . import baseline, codec, metrics, tps
+from .errors import TpsvError
+from .features import FeatureExtractor
+from .model import Model
+from .vectorize import build_geometry, evaluate, make_model, vectorize
+
+#: JPEG qualities swept for the rate-distortion curve and the best-w search.
+JPEG_QUALITIES = tuple(range(5, 101, 5))
+#: A global (whole-region) TPS solve is timed directly up to this many features;
+#: beyond, it is timed on a subset and scaled by n^3 (marked as estimated).
+GLOBAL_EXACT_MAX = 3000
+
+
+def _point(rgb: np.ndarray, nbytes: int, err: float, **extra) -> dict:
+    h, w = rgb.shape[:2]
+    return {
+        "psnr": float("inf") if err == 0 else float(10 * np.log10(1.0 / err)),
+        "w": metrics.efficiency(err, nbytes, w, h),
+        "bpp": metrics.bpp(nbytes, w, h),
+        "bytes": int(nbytes),
+        **extra,
+    }
+
+
+def jpeg_table(rgb: np.ndarray, tpsv_bytes: int) -> dict:
+    """JPEG at every quality of the sweep, at the best w, and at tpsv's byte count."""
+    sweep = []
+    for q in JPEG_QUALITIES:
+        n, dec = baseline.jpeg(rgb, q)
+        sweep.append(_point(rgb, n, metrics.mse(rgb, dec), quality=q))
+    best = max(sweep, key=lambda p: p["w"])
+    q, n, dec = baseline.jpeg_at_bytes(rgb, tpsv_bytes)
+    same = _point(rgb, n, metrics.mse(rgb, dec), quality=q)
+    return {"sweep": sweep, "best_w": best, "same_bytes": same}
+
+
+def _global_solve_seconds(model: Model, n_eval: int = 2000) -> dict:
+    """Seconds of one dense TPS per region (construction + solve + evaluation at
+    every pixel of the region), on the CPU with numpy/LAPACK."""
+    total = 0.0
+    estimated = False
+    rng = np.random.default_rng(0)
+    feats = model.features
+    for r, reg in enumerate(model.regions):
+        sel = np.flatnonzero(feats.region == r)
+        n = sel.size
+        if n < 3:
+            continue
+        sx, sy = tps.patch_pixel_scale(reg.patch)
+        pts = feats.st[sel] * [sx, sy]
+        vals = feats.lab[sel].astype(np.float64)
+        m = n if n <= GLOBAL_EXACT_MAX else GLOBAL_EXACT_MAX
+        sub = rng.choice(n, m, replace=False) if m < n else np.arange(n)
+        t0 = time.perf_counter()
+        coef = tps.tps_fit(pts[sub], vals[sub])
+        solve = time.perf_counter() - t0
+        q = rng.random((n_eval, 2)) * [sx, sy]
+        t0 = time.perf_counter()
+        tps.tps_eval(coef, pts[sub], q)
+        ev = time.perf_counter() - t0
+        # Pixels of the region ~ its share of the image; evaluation is linear in
+        # pixels and in features.
+        area = model.width * model.height * (np.sum(feats.region == r) / max(len(feats), 1))
+        if m < n:
+            estimated = True
+            solve *= (n / m) ** 3
+        total += solve + ev * (area / n_eval) * (n / m)
+    return {"seconds": total, "estimated": estimated}
+
+
+def _local_unpacked_seconds(model: Model) -> dict:
+    """Seconds of the localised scheme without packing: each sub-patch solves only
+    its own cell's features (unequal sizes, one LAPACK solve each, CPU) and
+    evaluates only its own cell's share of the pixels (no overlap)."""
+    ks = tps.group_kernels(model)
+    feats = model.features
+    pix_per_feature = model.width * model.height / max(len(feats), 1)
+    t0 = time.perf_counter()
+    for k in range(ks.n_kernels):
+        r = ks.region[k]
+        s0, s1, t0c, t1c = ks.cell[k]
+        sel = np.flatnonzero(
+            (feats.region == r) & (feats.st[:, 0] >= s0) & (feats.st[:, 0] < s1)
+            & (feats.st[:, 1] >= t0c) & (feats.st[:, 1] < t1c)
+        )
+        if sel.size < 3:
+            continue
+        sx, sy = ks.scale[r]
+        pts = feats.st[sel] * [sx, sy]
+        coef = tps.tps_fit(pts, feats.lab[sel].astype(np.float64))
+        npix = max(1, int(sel.size * pix_per_feature))
+        q = pts[0] + np.random.default_rng(k).random((npix, 2))
+        tps.tps_eval(coef, pts, q)
+    return {"seconds": time.perf_counter() - t0, "kernels": ks.n_kernels}
+
+
+def timing_table(model: Model, device: str) -> dict:
+    """Table I: construction + solve + rasterisation, three ways."""
+    from .render import render_timed
+
+    _, t = render_timed(model, device=device, repeat=3)
+    ks = tps.group_kernels(model)
+    return {
+        "global_cpu": _global_solve_seconds(model),
+        "local_unpacked_cpu": _local_unpacked_seconds(model),
+        "local_packed": {
+            "device": device,
+            "seconds": t["solve"] + t["rasterise"] + t["patchmap"],
+            "stages": t,
+            "kernels": ks.n_kernels,
+            "kernel_size": ks.kernel_size,
+        },
+    }
+
+
+def magnification_table(rgb: np.ndarray, factor: int, device: str, seed: int) -> dict:
+    """Area-downscale by ``factor``, vectorise, magnify back; compare with the original."""
+    h, w = rgb.shape[:2]
+    h, w = h - h % factor, w - w % factor
+    ref = rgb[:h, :w]
+    small = baseline.downscale_area(ref, factor)
+    from .render import render
+
+    res = vectorize(small, search=False, seed=seed, device=device)
+    big = render(res.model, width=w, height=h, device=device)
+    rows = {"tpsv": big}
+    for method in ("bicubic", "lanczos"):
+        rows[method] = baseline.upscale(small, factor, method)[:h, :w]
+    return {
+        name: {"psnr": metrics.psnr(ref, img), "ssim": metrics.ssim(ref, img), "edge_sharpness": edge_sharpness(img)}
+        for name, img in rows.items()
+    } | {"reference_edge_sharpness": edge_sharpness(ref)}
+
+
+def edge_sharpness(rgb: np.ndarray) -> float:
+    """Mean gradient magnitude on the strongest 5 % of edges (higher = sharper)."""
+    grey = cv2.cvtColor(np.clip(rgb, 0, 1).astype(np.float32), cv2.COLOR_RGB2GRAY)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1)
+    mag = np.hypot(gx, gy).ravel()
+    top = np.sort(mag)[-max(1, mag.size // 20):]
+    return float(top.mean())
+
+
+def bench_image(
+    name: str,
+    rgb: np.ndarray,
+    labels: np.ndarray | None,
+    *,
+    device: str = "cpu",
+    iterations: int = 20,
+    grid: int = 4,
+    seed: int = 0,
+    magnify: int = 4,
+    step: Callable[[str], None] | None = None,
+) -> dict:
+    """All benchmark figures for one image (see the module docstring)."""
+    from . import selection
+
+    tick = step or (lambda label: None)
+    h, w = rgb.shape[:2]
+    t0 = time.perf_counter()
+    res = vectorize(rgb, labels, search=True, iterations=iterations, seed=seed, device=device)
+    vec_seconds = time.perf_counter() - t0
+    tick("search")
+    start = res.history[0] if res.history else None
+    optimum = _point(rgb, len(res.data), res.mse, t_canny=res.model.params.t_canny, t_super=res.model.params.t_super)
+
+    # The same geometry and precomputed extractor serve the initial guess and the grid.
+    geometry = build_geometry(labels if labels is not None else _auto_labels(rgb, seed))
+    extractor = FeatureExtractor(rgb, geometry.index)
+    c0, s0 = selection.initial_thresholds(rgb, geometry.index)
+    base = res.model.params
+
+    def point_at(tc: float, ts: float) -> dict:
+        model = make_model(rgb, geometry, extractor, replace(base, t_canny=float(tc), t_super=float(ts)))
+        data, _, err = evaluate(rgb, model, device)
+        return _point(rgb, len(data), err, t_canny=float(tc), t_super=float(ts), features=len(model.features))
+
+    initial = point_at(c0, s0)
+    tick("initial")
+    brute = []
+    if grid > 0:
+        for tc in np.geomspace(c0 / 2, c0 * 8, grid):
+            for ts in np.geomspace(s0 / 2, s0 * 8, grid):
+                brute.append(point_at(tc, ts))
+        tick("grid")
+    best_brute = max(brute + [optimum], key=lambda p: p["w"])
+
+    model = res.model
+    t0 = time.perf_counter()
+    from .render import render
+
+    render(model, device=device)
+    render_seconds = time.perf_counter() - t0
+    jp = jpeg_table(rgb, len(res.data))
+    tick("jpeg")
+    timing = timing_table(model, device)
+    tick("timing")
+    mag = magnification_table(rgb, magnify, device, seed) if min(h, w) >= 8 * magnify else None
+    tick("magnify")
+    return {
+        "name": name,
+        "width": w,
+        "height": h,
+        "regions": len(model.regions),
+        "features": len(model.features),
+        "vectorize_seconds": vec_seconds,
+        "render_seconds": render_seconds,
+        "initial": initial,
+        "search_start": None if start is None else {"t_canny": start.t_canny, "t_super": start.t_super, "w": start.w},
+        "optimal": optimum | {"features": len(model.features)},
+        "brute_force": best_brute,
+        "grid": brute,
+        "history": [
+            {"t_canny": t.t_canny, "t_super": t.t_super, "E": t.E, "C": t.C, "w": t.w} for t in res.history
+        ],
+        "jpeg": jp,
+        "timing": timing,
+        "magnification": mag,
+    }
+
+
+def _auto_labels(rgb: np.ndarray, seed: int) -> np.ndarray:
+    from . import segment
+
+    return segment.segment_auto(rgb, seed=seed)
+
+
+# --------------------------------------------------------------------------- presentation
+
+
+def _fmt(v, spec=".2f") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not np.isfinite(v):
+        return "inf"
+    return format(v, spec)
+
+
+def tables(results: list[dict], device: str) -> str:
+    """The printed report."""
+    out = []
+    out.append(f"Table I: construction + solve + rasterisation, seconds per image (local packed on {device})")
+    out.append(f"{'image':<12}{'global CPU':>14}{'local CPU':>12}{'packed':>10}{'kernels':>9}{'K':>5}")
+    for r in results:
+        t = r["timing"]
+        g = t["global_cpu"]
+        gs = _fmt(g["seconds"], ".3g") + ("*" if g["estimated"] else "")
+        out.append(
+            f"{r['name']:<12}{gs:>14}{_fmt(t['local_unpacked_cpu']['seconds'], '.3g'):>12}"
+            f"{_fmt(t['local_packed']['seconds'], '.3g'):>10}{t['local_packed']['kernels']:>9}"
+            f"{t['local_packed']['kernel_size']:>5}"
+        )
+    out.append("  * estimated: solved on 3000 features and scaled by n^3")
+    out.append("")
+    out.append("Table II: PSNR (dB), w = 1/(E*C), bpp")
+    hdr = f"{'image':<12}" + "".join(f"{c:>26}" for c in ("initial", "optimal", "brute-force", "JPEG best w", "JPEG same bytes"))
+    out.append(hdr)
+    for r in results:
+        cells = []
+        for p in (r["initial"], r["optimal"], r["brute_force"], r["jpeg"]["best_w"], r["jpeg"]["same_bytes"]):
+            cells.append(f"{_fmt(p['psnr'])} {_fmt(p['w'], '.3g')} {_fmt(p['bpp'])}")
+        out.append(f"{r['name']:<12}" + "".join(f"{c:>26}" for c in cells))
+    out.append("")
+    out.append("Magnification 4x (area-downscaled, then upscaled): PSNR / SSIM / edge sharpness")
+    out.append(f"{'image':<12}{'tpsv':>24}{'bicubic':>24}{'lanczos':>24}{'original sharpness':>20}")
+    for r in results:
+        m = r["magnification"]
+        if not m:
+            continue
+        cells = [f"{_fmt(m[k]['psnr'])} / {_fmt(m[k]['ssim'], '.3f')} / {_fmt(m[k]['edge_sharpness'], '.2f')}"
+                 for k in ("tpsv", "bicubic", "lanczos")]
+        out.append(f"{r['name']:<12}" + "".join(f"{c:>24}" for c in cells) + f"{_fmt(m['reference_edge_sharpness']):>20}")
+    out.append("")
+    out.append("CPU seconds (this machine)")
+    out.append(f"{'image':<12}{'size':>10}{'features':>10}{'vectorize':>11}{'render':>9}")
+    for r in results:
+        out.append(f"{r['name']:<12}{str(r['width']) + 'x' + str(r['height']):>10}{r['features']:>10}"
+                   f"{_fmt(r['vectorize_seconds']):>11}{_fmt(r['render_seconds'], '.3f'):>9}")
+    return "\n".join(out)
+
+
+def rd_plot(result: dict, path: Path, size: tuple[int, int] = (640, 420)) -> None:
+    """PSNR against bpp: tpsv (grid and search points) and the JPEG sweep, as a PNG."""
+    W, H = size
+    img = np.full((H, W, 3), 255, np.uint8)
+    tp = [(p["bpp"], p["psnr"]) for p in result["grid"] + [result["optimal"], result["initial"]]]
+    jp = [(p["bpp"], p["psnr"]) for p in result["jpeg"]["sweep"]]
+    pts = [p for p in tp + jp if np.isfinite(p[1])]
+    if not pts:
+        raise TpsvError("nothing to plot")
+    x0, x1 = 0.0, max(p[0] for p in pts) * 1.05
+    y0 = np.floor(min(p[1] for p in pts) / 5) * 5
+    y1 = np.ceil(max(p[1] for p in pts) / 5) * 5
+    L, R, T, B = 60, 20, 30, 50
+
+    def xy(bpp, db):
+        return (int(L + (bpp - x0) / (x1 - x0) * (W - L - R)), int(H - B - (db - y0) / max(y1 - y0, 1e-9) * (H - T - B)))
+
+    cv2.rectangle(img, (L, T), (W - R, H - B), (0, 0, 0), 1)
+    for db in np.arange(y0, y1 + 0.1, 5):
+        p = xy(x0, db)
+        cv2.line(img, (L, p[1]), (W - R, p[1]), (220, 220, 220), 1)
+        cv2.putText(img, f"{db:.0f}", (8, p[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    for k in range(6):
+        b = x0 + (x1 - x0) * k / 5
+        p = xy(b, y0)
+        cv2.putText(img, f"{b:.1f}", (p[0] - 10, H - B + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    cv2.putText(img, "bpp", (W // 2, H - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1)
+    cv2.putText(img, "PSNR dB", (4, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+    jp_sorted = sorted(p for p in jp if np.isfinite(p[1]))
+    for a, b in zip(jp_sorted, jp_sorted[1:]):
+        cv2.line(img, xy(*a), xy(*b), (200, 80, 0), 2, cv2.LINE_AA)
+    for p in tp:
+        if np.isfinite(p[1]):
+            cv2.circle(img, xy(*p), 4, (0, 0, 220), -1, cv2.LINE_AA)
+    o = result["optimal"]
+    cv2.circle(img, xy(o["bpp"], o["psnr"]), 8, (0, 160, 0), 2, cv2.LINE_AA)
+    cv2.putText(img, f"{result['name']}: tpsv (red, green = searched optimum), JPEG (blue)", (L, 20),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+    ok, buf = cv2.imencode(".png", img)
+    from .fileio import write_bytes_atomic
+
+    write_bytes_atomic(path, buf.tobytes())
