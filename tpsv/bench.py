@@ -14,7 +14,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from . import baseline, codec, metrics, tps
+from . import baseline, metrics, tps
 from .errors import TpsvError
 from .features import FeatureExtractor
 from .model import Model
@@ -50,6 +50,25 @@ def jpeg_table(rgb: np.ndarray, tpsv_bytes: int) -> dict:
     return {"sweep": sweep, "best_w": best, "same_bytes": same}
 
 
+def _fit(pts: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A TPS through distinct points (duplicates dropped; collinear sets fall back
+    to least squares), for timing."""
+    pts, first = np.unique(pts, axis=0, return_index=True)
+    try:
+        return tps.tps_fit(pts, vals[first]), pts
+    except np.linalg.LinAlgError:
+        n = pts.shape[0]
+        d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1)
+        A = np.zeros((n + 3, n + 3))
+        A[:n, :n] = tps.tps_phi(d2)
+        A[:n, n] = A[n, :n] = 1
+        A[:n, n + 1 :] = pts
+        A[n + 1 :, :n] = pts.T
+        rhs = np.zeros((n + 3, vals.shape[1]))
+        rhs[:n] = vals[first]
+        return np.linalg.lstsq(A, rhs, rcond=None)[0], pts
+
+
 def _global_solve_seconds(model: Model, n_eval: int = 2000) -> dict:
     """Seconds of one dense TPS per region (construction + solve + evaluation at
     every pixel of the region), on the CPU with numpy/LAPACK."""
@@ -68,11 +87,11 @@ def _global_solve_seconds(model: Model, n_eval: int = 2000) -> dict:
         m = n if n <= GLOBAL_EXACT_MAX else GLOBAL_EXACT_MAX
         sub = rng.choice(n, m, replace=False) if m < n else np.arange(n)
         t0 = time.perf_counter()
-        coef = tps.tps_fit(pts[sub], vals[sub])
+        coef, used = _fit(pts[sub], vals[sub])
         solve = time.perf_counter() - t0
         q = rng.random((n_eval, 2)) * [sx, sy]
         t0 = time.perf_counter()
-        tps.tps_eval(coef, pts[sub], q)
+        tps.tps_eval(coef, used, q)
         ev = time.perf_counter() - t0
         # Pixels of the region ~ its share of the image; evaluation is linear in
         # pixels and in features.
@@ -103,10 +122,10 @@ def _local_unpacked_seconds(model: Model) -> dict:
             continue
         sx, sy = ks.scale[r]
         pts = feats.st[sel] * [sx, sy]
-        coef = tps.tps_fit(pts, feats.lab[sel].astype(np.float64))
+        coef, used = _fit(pts, feats.lab[sel].astype(np.float64))
         npix = max(1, int(sel.size * pix_per_feature))
         q = pts[0] + np.random.default_rng(k).random((npix, 2))
-        tps.tps_eval(coef, pts, q)
+        tps.tps_eval(coef, used, q)
     return {"seconds": time.perf_counter() - t0, "kernels": ks.n_kernels}
 
 
