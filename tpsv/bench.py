@@ -148,16 +148,32 @@ def timing_table(model: Model, device: str) -> dict:
     }
 
 
-def magnification_table(rgb: np.ndarray, factor: int, device: str, seed: int) -> dict:
-    """Area-downscale by ``factor``, vectorise, magnify back; compare with the original."""
+def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080), repeat: int = 10) -> dict:
+    """A full-HD render on ``device``: stage timings (best of ``repeat``) and the
+    largest difference from the CPU render of the same size."""
+    from .render import render, render_timed
+
+    img, t = render_timed(model, width=size[0], height=size[1], device=device, repeat=repeat)
+    ref = render(model, width=size[0], height=size[1], device="cpu")
+    return {
+        "device": device,
+        "size": list(size),
+        "stages_ms": {k: v * 1e3 for k, v in t.items()},
+        "device_ms": (t["patchmap"] + t["solve"] + t["rasterise"]) * 1e3,
+        "max_abs_diff_vs_cpu": float(np.abs(img - ref).max()),
+    }
+
+
+def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
+    """Area-downscale by ``factor``, magnify back (``tpsv.magnify``: dense model,
+    back-projected colours, one region); compare with the original."""
     h, w = rgb.shape[:2]
     h, w = h - h % factor, w - w % factor
     ref = rgb[:h, :w]
     small = baseline.downscale_area(ref, factor)
-    from .render import render
+    from .magnify import magnify_raster
 
-    res = vectorize(small, search=False, seed=seed, device=device)
-    big = render(res.model, width=w, height=h, device=device)
+    _, big = magnify_raster(small, (w, h), device=device)
     rows = {"tpsv": big}
     for method in ("bicubic", "lanczos"):
         rows[method] = baseline.upscale(small, factor, method)[:h, :w]
@@ -232,8 +248,9 @@ def bench_image(
     tick("jpeg")
     timing = timing_table(model, device)
     tick("timing")
-    mag = magnification_table(rgb, magnify, device, seed) if min(h, w) >= 8 * magnify else None
+    mag = magnification_table(rgb, magnify, device) if min(h, w) >= 8 * magnify else None
     tick("magnify")
+    dev = device_table(model, device) if device != "cpu" else None
     return {
         "name": name,
         "width": w,
@@ -253,6 +270,7 @@ def bench_image(
         "jpeg": jp,
         "timing": timing,
         "magnification": mag,
+        "device_check": dev,
     }
 
 
@@ -307,6 +325,17 @@ def tables(results: list[dict], device: str) -> str:
         cells = [f"{_fmt(m[k]['psnr'])} / {_fmt(m[k]['ssim'], '.3f')} / {_fmt(m[k]['edge_sharpness'], '.2f')}"
                  for k in ("tpsv", "bicubic", "lanczos")]
         out.append(f"{r['name']:<12}" + "".join(f"{c:>24}" for c in cells) + f"{_fmt(m['reference_edge_sharpness']):>20}")
+    devs = [r for r in results if r.get("device_check")]
+    if devs:
+        out.append("")
+        out.append(f"Full HD (1920x1080) on {device}: ms per stage (best of 10), max |{device} - cpu|")
+        out.append(f"{'image':<12}{'patchmap':>10}{'solve':>8}{'raster':>8}{'device':>8}{'regions*':>10}{'group*':>8}{'max diff':>10}")
+        for r in devs:
+            d = r["device_check"]
+            st = d["stages_ms"]
+            out.append(f"{r['name']:<12}{st['patchmap']:>10.2f}{st['solve']:>8.2f}{st['rasterise']:>8.2f}"
+                       f"{d['device_ms']:>8.2f}{st['regions']:>10.1f}{st['group']:>8.1f}{d['max_abs_diff_vs_cpu']:>10.2e}")
+        out.append("  * host stages (outline rasterisation, kernel grouping), done once per model and size")
     out.append("")
     out.append("CPU seconds (this machine)")
     out.append(f"{'image':<12}{'size':>10}{'features':>10}{'vectorize':>11}{'render':>9}")

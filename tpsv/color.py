@@ -15,7 +15,7 @@ _WHITE = np.array([0.950456, 1.0, 1.088754])
 def srgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     """Convert sRGB in ``[0, 1]`` (shape ``(..., 3)``) to Lab (float32)."""
     c = np.asarray(rgb, np.float64)
-    lin = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+    lin = np.where(c > 0.04045, ((np.maximum(c, 0.04045) + 0.055) / 1.055) ** 2.4, c / 12.92)
     xyz = lin @ _RGB2XYZ.T / _WHITE
     f = np.where(xyz > 0.008856, np.cbrt(xyz), 7.787 * xyz + 16.0 / 116.0)
     L = 116.0 * f[..., 1] - 16.0

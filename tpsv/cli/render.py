@@ -9,8 +9,8 @@ import click
 from . import main, say
 from .options import (check_json_target, device_for, device_option, emit_json, is_tpsv, json_option,
                       output_option, parse_size, positive)
-from .vectorize import run_vectorize, vectorize_options
 from .. import codec
+from ..errors import TpsvError
 from ..image import write_image
 
 
@@ -55,24 +55,51 @@ def render(ctx, path, output, scale, size, device, as_json):
 @click.argument("path", type=click.Path(dir_okay=False, allow_dash=True))
 @output_option("PNG to write ('-': stdout).")
 @click.option("--factor", type=float, required=True, help="Magnification factor.")
-@vectorize_options
-@click.option("--search/--no-search", default=False, show_default=True,
-              help="For raster input: search the thresholds before magnifying.")
+@click.option("--labels", type=click.Path(dir_okay=False), default=None,
+              help="For raster input: label map whose region borders stay sharp (default: one region).")
+@click.option("--fit-iterations", type=click.IntRange(0, 50), default=6, show_default=True,
+              help="For raster input: back-projection steps fitting the colours to the input.")
+@click.option("--save-model", type=click.Path(dir_okay=False), default=None,
+              help="For raster input: also write the fitted dense model as .tpsv.")
 @device_option
 @json_option
 @click.pass_context
-def magnify(ctx, path, output, factor, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing,
-            search, device, as_json):
-    """Magnify PATH (a .tpsv, or a raster photo that is vectorised first) by --factor."""
+def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, device, as_json):
+    """Magnify PATH by --factor.
+
+    PATH is a .tpsv (rendered at the scale), or a raster photo: then every pixel
+    becomes a colour feature, the colours are fitted so that the magnified
+    render, area-averaged back, reproduces the photo, and the result is
+    rendered (tpsv.magnify).
+    """
     check_json_target(as_json, output)
     positive("--factor", factor)
     device = device_for(ctx, device)
-    extra = {}
     if is_tpsv(path):
+        if labels or save_model:
+            raise click.UsageError("--labels and --save-model apply to raster input only")
         model = codec.load(path)
+        _render_and_write(ctx, model, output, None, factor, device, as_json)
+        return
+    from ..image import read_image, read_labels
+    from ..magnify import magnify_raster
+    from ..render import MAX_PIXELS, MAX_SIDE
+
+    t0 = time.perf_counter()
+    rgb = read_image(path)
+    lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
+    h, w = rgb.shape[:2]
+    size = (max(1, round(w * factor)), max(1, round(h * factor)))
+    if max(size) > MAX_SIDE or size[0] * size[1] > MAX_PIXELS:
+        raise TpsvError(f"output size {size[0]}x{size[1]} is too large (at most {MAX_SIDE} px per side)")
+    model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device)
+    seconds = time.perf_counter() - t0
+    if save_model:
+        codec.save(model, save_model)
+    write_image(output, big)
+    info = {"width": size[0], "height": size[1], "seconds": seconds, "device": device,
+            "features": len(model.features), "regions": len(model.regions)}
+    if as_json:
+        emit_json(info)
     else:
-        _, result = run_vectorize(ctx, path, labels, seed, iterations, t_canny, t_super, kernel_size,
-                                  smoothing, search, device)
-        model = result.model
-        extra = {"vectorize_seconds": result.seconds, "bytes": len(result.data)}
-    _render_and_write(ctx, model, output, None, factor, device, as_json, extra)
+        say(ctx, f"{output}: {size[0]}x{size[1]} from {w}x{h} ({info['features']} features) in {seconds:.2f} s")

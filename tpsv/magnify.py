@@ -1,0 +1,120 @@
+"""Magnifying a raster: a dense vector model fitted for the requested scale.
+
+For compression, features are few and placed where they pay (``vectorize``).
+For magnifying a small photo, bytes do not matter and every input pixel is
+evidence, so :func:`dense_model` puts one gradation feature at every pixel
+centre (regions still come from a label map, so region borders stay sharp
+vector outlines at any scale). A pixel of the input is the area average of
+the scene, not a point sample, so :func:`back_project` then adjusts the
+feature colours until the area-average of the magnified render reproduces
+the input (iterative back-projection; the render is linear in the feature
+colours before the gamut clamp). On the bundled samples this beats bicubic
+and Lanczos upscaling in PSNR (``tpsv bench``).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .color import srgb_to_lab
+from .model import GRADATION, Features, Model, Params
+from .vectorize import Geometry, build_geometry, to_patch_space
+
+
+def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Params | None = None) -> tuple[Model, np.ndarray]:
+    """A model with one gradation feature at every pixel centre.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    labels : ndarray (H, W) int, optional
+        Label map (default: one region).
+    params : Params, optional
+
+    Returns
+    -------
+    model : Model
+    pixel : ndarray (F,) int64
+        Flat pixel index of each feature (features are sorted by region).
+    """
+    h, w = rgb.shape[:2]
+    geometry: Geometry = build_geometry(np.zeros((h, w), np.int32) if labels is None else labels)
+    yy, xx = np.mgrid[:h, :w]
+    xy = np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], 1).astype(np.float64)
+    region = geometry.index.ravel().astype(np.int32)
+    order = np.argsort(region, kind="stable")
+    st = to_patch_space(geometry, xy[order], region[order])
+    feats = Features(
+        region=region[order],
+        st=st,
+        lab=srgb_to_lab(rgb.reshape(-1, 3)[order]),
+        kind=np.full(order.size, GRADATION, np.uint8),
+        pair=np.full(order.size, -1, np.int32),
+    )
+    model = Model(width=w, height=h, regions=geometry.regions, features=feats,
+                  params=params or Params(kernel_size=32))
+    return model, order
+
+
+def back_project(
+    model: Model,
+    pixel: np.ndarray,
+    rgb: np.ndarray,
+    size: tuple[int, int],
+    iterations: int = 6,
+    device: str = "cpu",
+) -> Model:
+    """Fit feature colours so that the render at ``size``, area-downscaled to the
+    input size, reproduces ``rgb``.
+
+    Parameters
+    ----------
+    model, pixel : from :func:`dense_model`
+    rgb : ndarray (H, W, 3) float32
+        The input photo.
+    size : (width, height)
+        Output size the model is fitted for.
+    iterations : int
+        Back-projection steps (the gain levels off after about five).
+    device : str
+        Warp device for the renders.
+
+    Returns
+    -------
+    Model
+        The model with fitted colours.
+    """
+    from .render import render
+
+    h, w = rgb.shape[:2]
+    target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
+    current = target.copy()
+    feats = model.features
+    for _ in range(iterations):
+        big = render(model, width=size[0], height=size[1], device=device)
+        down = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA).reshape(-1, 3)[pixel]
+        # Colours may leave the gamut a little so that blurred neighbours land on target.
+        current = np.clip(current + (target - down), -0.25, 1.25)
+        feats = Features(region=feats.region, st=feats.st, lab=srgb_to_lab(current), kind=feats.kind, pair=feats.pair)
+        model = Model(width=model.width, height=model.height, regions=model.regions, features=feats, params=model.params)
+    return model
+
+
+def magnify_raster(
+    rgb: np.ndarray,
+    size: tuple[int, int],
+    labels: np.ndarray | None = None,
+    iterations: int = 6,
+    device: str = "cpu",
+) -> tuple[Model, np.ndarray]:
+    """Magnify a photo to ``size`` = (width, height): dense model + back-projection.
+
+    Returns the fitted model and the render at ``size``.
+    """
+    from .render import render
+
+    model, pixel = dense_model(rgb, labels)
+    model = back_project(model, pixel, rgb, size, iterations=iterations, device=device)
+    return model, render(model, width=size[0], height=size[1], device=device)
+
