@@ -23,7 +23,7 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	mkdir -p $(OUT)
-	$(BIN)/tpsv vectorize $(SAMPLE) -o $(OUT)/demo.tpsv --preview $(OUT)/demo-preview.png
+	$(BIN)/tpsv vectorize $(SAMPLE) -o $(OUT)/demo.tpsv --labels $(SAMPLE:.png=-labels.png) --preview $(OUT)/demo-preview.png
 	$(BIN)/tpsv info $(OUT)/demo.tpsv
 	$(BIN)/tpsv render $(OUT)/demo.tpsv -o $(OUT)/demo-render.png
 	$(BIN)/tpsv render $(OUT)/demo.tpsv -o $(OUT)/demo-x4.png --scale 4

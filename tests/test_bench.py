@@ -48,3 +48,12 @@ def test_bench_bad_image(tmp_path):
     r = CliRunner().invoke(main, ["bench", str(bad)])
     assert r.exit_code == 1
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_bench_tpsv_input_gives_timing_only(tmp_path, small_png):
+    model = tmp_path / "m.tpsv"
+    assert CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(model), "--no-search"]).exit_code == 0
+    r = CliRunner().invoke(main, ["bench", str(model), "--json"])
+    assert r.exit_code == 0, r.output
+    (img,) = json.loads(r.stdout)["images"]
+    assert "initial" not in img and img["timing"]["local_packed"]["seconds"] > 0

@@ -274,6 +274,19 @@ def bench_image(
     }
 
 
+def bench_model(name: str, model: Model, *, device: str = "cpu") -> dict:
+    """Timing figures for an existing model (no source image: no quality tables)."""
+    return {
+        "name": name,
+        "width": model.width,
+        "height": model.height,
+        "regions": len(model.regions),
+        "features": len(model.features),
+        "timing": timing_table(model, device),
+        "device_check": device_table(model, device) if device != "cpu" else None,
+    }
+
+
 def _auto_labels(rgb: np.ndarray, seed: int) -> np.ndarray:
     from . import segment
 
@@ -311,6 +324,8 @@ def tables(results: list[dict], device: str) -> str:
     hdr = f"{'image':<12}" + "".join(f"{c:>26}" for c in ("initial", "optimal", "brute-force", "JPEG best w", "JPEG same bytes"))
     out.append(hdr)
     for r in results:
+        if "initial" not in r:
+            continue
         cells = []
         for p in (r["initial"], r["optimal"], r["brute_force"], r["jpeg"]["best_w"], r["jpeg"]["same_bytes"]):
             cells.append(f"{_fmt(p['psnr'])} {_fmt(p['w'], '.3g')} {_fmt(p['bpp'])}")
@@ -319,7 +334,7 @@ def tables(results: list[dict], device: str) -> str:
     out.append("Magnification 4x (area-downscaled, then upscaled): PSNR / SSIM / edge sharpness")
     out.append(f"{'image':<12}{'tpsv':>24}{'bicubic':>24}{'lanczos':>24}{'original sharpness':>20}")
     for r in results:
-        m = r["magnification"]
+        m = r.get("magnification")
         if not m:
             continue
         cells = [f"{_fmt(m[k]['psnr'])} / {_fmt(m[k]['ssim'], '.3f')} / {_fmt(m[k]['edge_sharpness'], '.2f')}"
@@ -340,6 +355,8 @@ def tables(results: list[dict], device: str) -> str:
     out.append("CPU seconds (this machine)")
     out.append(f"{'image':<12}{'size':>10}{'features':>10}{'vectorize':>11}{'render':>9}")
     for r in results:
+        if "vectorize_seconds" not in r:
+            continue
         out.append(f"{r['name']:<12}{str(r['width']) + 'x' + str(r['height']):>10}{r['features']:>10}"
                    f"{_fmt(r['vectorize_seconds']):>11}{_fmt(r['render_seconds'], '.3f'):>9}")
     return "\n".join(out)

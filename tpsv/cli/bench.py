@@ -8,7 +8,8 @@ from pathlib import Path
 import click
 
 from . import main, progress_enabled, say
-from .options import device_for, device_option, json_option
+from .options import device_for, device_option, is_tpsv, json_option
+from .. import codec
 from ..errors import TpsvError
 from ..image import read_image, read_labels
 
@@ -44,6 +45,8 @@ def _inputs(images: tuple[str, ...]) -> list[tuple[str, Path, Path | None]]:
 def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
     """Benchmark IMAGES (default: the bundled samples, with their label maps).
 
+    An IMAGE may also be a .tpsv file: then only its timing tables are made.
+
     Prints Table I (construction + solve + rasterisation: global CPU solve,
     localised without and with packing), Table II (PSNR, w and bpp of the initial
     guess, the searched optimum, a brute-force grid and JPEG), the 4x
@@ -61,6 +64,11 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
         bar.__enter__()
     try:
         for name, path, lab_path in inputs:
+            if is_tpsv(str(path)):
+                results.append(b.bench_model(name, codec.load(path), device=device))
+                if bar:
+                    bar.update(len(stages))
+                continue
             rgb = read_image(path)
             labels = read_labels(lab_path, shape=rgb.shape[:2]) if lab_path else None
             results.append(b.bench_image(name, rgb, labels, device=device, iterations=iterations, grid=grid,
@@ -76,7 +84,8 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
 
         write_bytes_atomic(out / "bench.json", json.dumps(report, indent=2, default=float).encode())
         for r in results:
-            b.rd_plot(r, out / f"rd-{r['name']}.png")
+            if "grid" in r:
+                b.rd_plot(r, out / f"rd-{r['name']}.png")
     if as_json:
         click.echo(json.dumps(report, indent=2, default=float))
     else:
