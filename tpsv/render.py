@@ -13,6 +13,13 @@ Output pixel ``(X, Y)`` at scale ``k`` samples ``((X + 0.5) / k, (Y + 0.5) / k)`
 of the model's pixel space (``tpsv.model``); for a size ``W x H`` the scale is
 per axis, ``W / model.width`` and ``H / model.height``.
 
+Draw order: where region outlines overlap (only after an edit such as
+``deform`` moves a region), the region drawn first keeps the pixel. Regions are
+drawn in index order, except that the regions listed in
+``model.params.extra["front"]`` (:data:`FRONT_KEY`, a comma-separated list of
+region indices, written by ``tpsv.deform``) are drawn before all others, in
+the order listed: they are on top. See :func:`region_index`.
+
 A region without features (``vectorize`` never makes one) renders flat in the
 mean colour of all the model's features (mid grey, Lab (50, 0, 0), when the
 model has none); a pixel outside every region (only when the model has no
@@ -27,6 +34,9 @@ import numpy as np
 
 from . import outline, tps
 from .errors import TpsvError
+
+#: ``Params.extra`` key: regions drawn on top (comma-separated indices, first on top).
+FRONT_KEY = "front"
 
 #: Largest output side, in pixels.
 MAX_SIDE = 16384
@@ -77,6 +87,43 @@ def _as_int(v) -> int:
     if not np.isfinite(f) or f != int(f):
         raise ValueError(v)
     return int(f)
+
+
+def draw_order(model) -> list[int]:
+    """Region indices in drawing order (first drawn is on top where outlines overlap).
+
+    Index order, except that the regions named in ``model.params.extra["front"]``
+    come first, in the order listed. Raises :class:`TpsvError` when that entry
+    is not a comma-separated list of distinct region indices.
+    """
+    R = len(model.regions)
+    text = (model.params.extra or {}).get(FRONT_KEY, "")
+    if text in ("", None):
+        return list(range(R))
+    front = []
+    try:
+        for tok in str(text).split(","):
+            front.append(int(tok))
+    except ValueError:
+        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} is not a list of region indices") from None
+    if len(set(front)) != len(front) or any(r < 0 or r >= R for r in front):
+        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} names a region twice or one that does not exist")
+    rest = [r for r in range(R) if r not in set(front)]
+    return front + rest
+
+
+def region_index(model, width: int, height: int) -> np.ndarray:
+    """Region of every output pixel ``(height, width)`` int32, honouring :func:`draw_order`.
+
+    ``outline.rasterize_regions`` on the regions in drawing order, mapped back
+    to region indices (identical to it when nothing is in front).
+    """
+    order = draw_order(model)
+    if order == list(range(len(model.regions))):
+        return outline.rasterize_regions(model.regions, width, height, src_size=(model.width, model.height))
+    idx = outline.rasterize_regions([model.regions[r] for r in order], width, height, src_size=(model.width, model.height))
+    lut = np.asarray(order + [-1], np.int32)
+    return lut[idx]
 
 
 def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True) -> np.ndarray:
@@ -131,7 +178,7 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
             times[name] = now - t0
             t0 = now
 
-    index = outline.rasterize_regions(model.regions, W, H, src_size=(model.width, model.height))
+    index = region_index(model, W, H)
     tick("regions")
     index_d = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=device)
     st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)

@@ -985,3 +985,215 @@ def render_timed(ks, region, st, device: str = "cpu", repeat: int = 1, threads: 
         img = out.numpy().reshape(out.shape[0], out.shape[1], 3)
         tick("download", t0)
     return img, best
+
+
+# --------------------------------------------------------------------------- incremental rebuild (tpsv.live)
+
+
+@wp.kernel
+def _copy_solution(
+    src_row: wp.array(dtype=wp.int32),
+    s_pts: wp.array2d(dtype=wp.vec2d),
+    s_pos32: wp.array2d(dtype=wp.vec2f),
+    s_w64: wp.array2d(dtype=wp.vec3d),
+    s_w32: wp.array2d(dtype=wp.vec3f),
+    s_b64: wp.array2d(dtype=wp.vec3d),
+    s_b32: wp.array2d(dtype=wp.vec3f),
+    s_status: wp.array(dtype=wp.int32),
+    s_lo: wp.array(dtype=wp.vec3f),
+    s_hi: wp.array(dtype=wp.vec3f),
+    d_pts: wp.array2d(dtype=wp.vec2d),
+    d_pos32: wp.array2d(dtype=wp.vec2f),
+    d_w64: wp.array2d(dtype=wp.vec3d),
+    d_w32: wp.array2d(dtype=wp.vec3f),
+    d_b64: wp.array2d(dtype=wp.vec3d),
+    d_b32: wp.array2d(dtype=wp.vec3f),
+    d_status: wp.array(dtype=wp.int32),
+    d_lo: wp.array(dtype=wp.vec3f),
+    d_hi: wp.array(dtype=wp.vec3f),
+):
+    """Kernel k of the destination takes row src_row[k] of the source (skipped when -1)."""
+    k, j = wp.tid()
+    s = src_row[k]
+    if s < 0:
+        return
+    d_pts[k, j] = s_pts[s, j]
+    d_pos32[k, j] = s_pos32[s, j]
+    d_w64[k, j] = s_w64[s, j]
+    d_w32[k, j] = s_w32[s, j]
+    if j < 3:
+        d_b64[k, j] = s_b64[s, j]
+        d_b32[k, j] = s_b32[s, j]
+    if j == 0:
+        d_status[k] = s_status[s]
+        d_lo[k] = s_lo[s]
+        d_hi[k] = s_hi[s]
+
+
+def subset_kernels(ks, kernels):
+    """A :class:`tpsv.tps.KernelSet` holding only the kernels ``kernels`` (int array), for solving.
+
+    The features (``st``, ``lab``), region scales and fill colours are shared
+    with ``ks``; the grid is emptied (the subset is solved, never rasterised).
+    Each kernel's system is exactly the one it has in ``ks``, so its solution
+    is bit-identical.
+    """
+    from dataclasses import replace
+
+    sel = np.asarray(kernels, np.int64).reshape(-1)
+    return replace(
+        ks,
+        index=ks.index[sel],
+        count=ks.count[sel],
+        degenerate=ks.degenerate[sel],
+        region=ks.region[sel],
+        cell=ks.cell[sel],
+        frame=ks.frame[sel],
+        grid=np.zeros_like(ks.grid),
+    )
+
+
+def _copy_rows(dst: DeviceKernels, src: DeviceKernels, src_row: np.ndarray) -> None:
+    dev = dst.device
+    rows = wp.array(np.ascontiguousarray(src_row, np.int32), dtype=wp.int32, device=dev)
+    wp.launch(
+        _copy_solution,
+        dim=(dst.n_kernels, dst.K),
+        inputs=[rows, src.pts, src.pos32, src.w64, src.w32, src.b64, src.b32, src.status, src.lo, src.hi],
+        outputs=[dst.pts, dst.pos32, dst.w64, dst.w32, dst.b64, dst.b32, dst.status, dst.lo, dst.hi],
+        device=dev,
+    )
+
+
+#: :func:`solve_reusing` solves everything when more than this fraction of the kernels changed.
+FULL_SOLVE_FRACTION = 0.6
+
+
+def solve_reusing(ks, prev: DeviceKernels | None, reuse, device: str = "cpu", threads: int | None = None):
+    """Upload ``ks`` and solve only the kernels that cannot reuse an earlier solution.
+
+    Parameters
+    ----------
+    ks : KernelSet
+        The new kernel set.
+    prev : DeviceKernels or None
+        Solved kernels of an earlier kernel set (same device and ``K``).
+    reuse : (n_kernels,) int array
+        For each kernel of ``ks``, the row of ``prev`` whose system is
+        identical (same local points, colours, frame, count and smoothing),
+        or -1 to solve it.
+
+    Returns
+    -------
+    (DeviceKernels, int)
+        The solved kernels of ``ks`` (bit-identical to ``solve(upload(ks))``)
+        and the number of kernels solved.
+    """
+    device = resolve_device(device)
+    reuse = np.asarray(reuse, np.int64).reshape(-1)
+    n = int(ks.n_kernels)
+    if reuse.shape[0] != n:
+        raise TpsvError("reuse map does not match the kernel set")
+    if prev is None or not prev.solved or prev.K != int(ks.kernel_size) or prev.device != device:
+        reuse = np.full(n, -1, np.int64)
+    todo = np.flatnonzero(reuse < 0)
+    dk = upload(ks, device)
+    if n == 0 or todo.size > FULL_SOLVE_FRACTION * n:
+        # most kernels changed: solving all of them in place is cheaper than a subset and a copy
+        return solve(dk, threads=threads), n
+    dk.A = None  # the full scratch matrix is not needed: only the subset is solved
+    if todo.size < n:
+        _copy_rows(dk, prev, reuse)
+    if todo.size:
+        sub = solve(upload(subset_kernels(ks, todo), device), threads=threads)
+        row = np.full(n, -1, np.int64)
+        row[todo] = np.arange(todo.size)
+        _copy_rows(dk, sub, row)
+    dk.solved = True
+    return dk, int(todo.size)
+
+
+@wp.kernel
+def _rasterise_list(
+    region: wp.array2d(dtype=wp.int32),
+    stmap: wp.array2d(dtype=wp.vec2f),
+    pixels: wp.array(dtype=wp.int32),
+    grid: wp.array2d(dtype=wp.int32),
+    fill: wp.array(dtype=wp.vec3f),
+    background: wp.vec3f,
+    half: float,
+    count: wp.array(dtype=wp.int32),
+    frame32: wp.array(dtype=wp.vec4f),
+    pos32: wp.array2d(dtype=wp.vec2f),
+    w32: wp.array2d(dtype=wp.vec3f),
+    b32: wp.array2d(dtype=wp.vec3f),
+    lo: wp.array(dtype=wp.vec3f),
+    hi: wp.array(dtype=wp.vec3f),
+    clamp: int,
+    mode: int,
+    width: int,
+    out: wp.array2d(dtype=wp.vec3f),
+):
+    """``_rasterise`` for the listed pixels (flat indices ``y * width + x``) only."""
+    i = wp.tid()
+    p = pixels[i]
+    y = p / width
+    x = p - y * width
+    r = region[y, x]
+    lab = background
+    if r >= 0:
+        st = stmap[y, x]
+        lab = _blend(r, st[0], st[1], grid, fill, half, count, frame32, pos32, w32, b32, lo, hi, clamp)
+    if mode == 0:
+        out[y, x] = lab_to_srgb(lab)
+    else:
+        out[y, x] = lab
+
+
+def rasterise_pixels(
+    dk: DeviceKernels,
+    region,
+    st,
+    pixels,
+    out: wp.array,
+    mode: int = MODE_SRGB,
+    background=(50.0, 0.0, 0.0),
+    threads: int | None = None,
+    clamp: bool = True,
+) -> wp.array:
+    """:func:`rasterise` for the pixels ``pixels`` (flat indices ``y * W + x``) only, into ``out``.
+
+    Other pixels of ``out`` are left as they are; the listed ones get exactly
+    the values :func:`rasterise` gives them.
+    """
+    if not dk.solved:
+        raise TpsvError("kernels are not solved yet")
+    dev = dk.device
+    reg = _as_region_map(region, dev)
+    stm = _as_st_map(st, dev)
+    H, W = reg.shape
+    if tuple(stm.shape) != (H, W) or tuple(out.shape) != (H, W):
+        raise TpsvError("region map, (S, T) map and output differ in size")
+    pix = np.ascontiguousarray(pixels, np.int32).reshape(-1)
+    n = pix.shape[0]
+    if n == 0:
+        return out
+    pix_d = wp.array(pix, dtype=wp.int32, device=dev)
+    bg = wp.vec3f(*[float(v) for v in background])
+
+    def launch(a, b):
+        wp.launch(
+            _rasterise_list,
+            dim=b - a,
+            inputs=[reg, stm, pix_d[a:b], dk.grid, dk.fill, bg, float(dk.half), dk.count, dk.frame32, dk.pos32,
+                    dk.w32, dk.b32, dk.lo, dk.hi, int(clamp), int(mode), int(W)],
+            outputs=[out],
+            device=dev,
+        )
+
+    if dev.startswith("cpu") and n >= 4096:
+        wp.load_module(module=_rasterise_list.module, device=dev)
+        _split(dev, n, threads, launch)
+    else:
+        launch(0, n)
+    return out
