@@ -164,6 +164,37 @@ def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080)
     }
 
 
+def edit_table(model: Model, device: str) -> dict:
+    """Rebuild + render seconds of typical edits through :class:`tpsv.live.LiveImage`
+    (only kernels whose features changed are solved again), best of 3."""
+    from .deform import affine
+    from .live import LiveImage
+    from .recolor import recolor
+
+    if not model.regions or not len(model.features):
+        return {}
+    # the largest region: the edits then touch a good share of the image
+    big = int(np.argmax(np.bincount(model.features.region, minlength=len(model.regions))))
+    cx, cy = model.width / 2.0, model.height / 2.0
+    edits = {
+        "recolor_point": lambda m: recolor(m, at=(cx, cy), radius=40, tolerance=30, hue=90),
+        "recolor_region": lambda m: recolor(m, region=big, tolerance=1000, hue=60),
+        "deform_translate": lambda m: affine(m, big, [[1, 0, 6], [0, 1, 4]]),
+        "deform_scale": lambda m: affine(m, big, [[1.1, 0, 0], [0, 1.1, 0]]),
+    }
+    out = {}
+    for name, edit in edits.items():
+        edited = edit(model)
+        best = None
+        for _ in range(3):
+            live = LiveImage(model, device=device)
+            stats = live.update(edited)
+            if best is None or stats.seconds["total"] < best["seconds"]["total"]:
+                best = stats.as_dict()
+        out[name] = best
+    return out
+
+
 def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
     """Area-downscale by ``factor``, magnify back (``tpsv.magnify``: dense model,
     back-projected colours, one region); compare with the original."""
@@ -251,6 +282,8 @@ def bench_image(
     mag = magnification_table(rgb, magnify, device) if min(h, w) >= 8 * magnify else None
     tick("magnify")
     dev = device_table(model, device) if device != "cpu" else None
+    edits = edit_table(model, device)
+    tick("edits")
     return {
         "name": name,
         "width": w,
@@ -271,6 +304,7 @@ def bench_image(
         "timing": timing,
         "magnification": mag,
         "device_check": dev,
+        "edits": edits,
     }
 
 
@@ -284,6 +318,7 @@ def bench_model(name: str, model: Model, *, device: str = "cpu") -> dict:
         "features": len(model.features),
         "timing": timing_table(model, device),
         "device_check": device_table(model, device) if device != "cpu" else None,
+        "edits": edit_table(model, device),
     }
 
 
@@ -351,6 +386,15 @@ def tables(results: list[dict], device: str) -> str:
             out.append(f"{r['name']:<12}{st['patchmap']:>10.2f}{st['solve']:>8.2f}{st['rasterise']:>8.2f}"
                        f"{d['device_ms']:>8.2f}{st['regions']:>10.1f}{st['group']:>8.1f}{d['max_abs_diff_vs_cpu']:>10.2e}")
         out.append("  * host stages (outline rasterisation, kernel grouping), done once per model and size")
+    eds = [r for r in results if r.get("edits")]
+    if eds:
+        out.append("")
+        out.append(f"Edits on {device}: live rebuild + render, ms (kernels solved / total)")
+        names = list(eds[0]["edits"])
+        out.append(f"{'image':<12}" + "".join(f"{n:>22}" for n in names))
+        for r in eds:
+            cells = [f"{e['seconds']['total'] * 1e3:.1f} ({e['solved']}/{e['kernels']})" for e in r["edits"].values()]
+            out.append(f"{r['name']:<12}" + "".join(f"{c:>22}" for c in cells))
     out.append("")
     out.append("CPU seconds (this machine)")
     out.append(f"{'image':<12}{'size':>10}{'features':>10}{'vectorize':>11}{'render':>9}")

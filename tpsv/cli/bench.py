@@ -56,7 +56,7 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
 
     device = device_for(ctx, device)
     inputs = _inputs(images)
-    stages = ["search", "initial", "grid", "jpeg", "timing", "magnify"]
+    stages = ["search", "initial", "grid", "jpeg", "timing", "magnify", "edits"]
     results = []
     bar = None
     if progress_enabled(ctx):
