@@ -142,7 +142,8 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
 def render_timed(model, width=None, height=None, scale=None, device: str = "cpu", repeat: int = 1, threads=None, clamp: bool = True):
     """Render and time each stage (seconds, best of ``repeat``): returns ``(image, timings)``.
 
-    Stages: ``regions`` (outline rasterisation, host), ``patchmap``,
+    Stages: ``regions`` (outline rasterisation, host), ``upload_regions``
+    (the region map to the device), ``patchmap``,
     ``group`` (host), ``upload``, ``solve`` (build + solve),
     ``rasterise``, ``download``, and ``total`` (their sum). Device stages end
     with a device synchronisation. The first call on a device also compiles
@@ -181,6 +182,7 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
     index = region_index(model, W, H)
     tick("regions")
     index_d = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=device)
+    tick("upload_regions")
     st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)
     tick("patchmap")
     ks = kernels if kernels is not None else tps.group_kernels(model)
