@@ -84,6 +84,20 @@ def tiny_model() -> Model:
     return Model(width=4, height=4, regions=[region], features=features)
 
 
+def coarse_model() -> Model:
+    """``hand_model`` with coarse colour steps and positions at 2 steps per pixel."""
+    m = hand_model()
+    m.params = dataclasses.replace(m.params, st_steps=2, l_step=6, ab_step=8)
+    return m
+
+
+def half_pixel_model() -> Model:
+    """Outline vertices on the half-pixel grid (stored with xy_shift 2)."""
+    m = tiny_model()
+    m.regions[0].outline = [np.array([[0.0, 0.5], [4.0, 0.5], [3.5, 4.0], [0.0, 3.0]])]
+    return m
+
+
 def no_features_model() -> Model:
     m = hand_model()
     return dataclasses.replace(m, features=Features.empty())
@@ -226,7 +240,7 @@ def reject(data: bytes, match: str | None = None) -> str:
 
 # ------------------------------------------------------------------ round trips
 
-MODELS = [hand_model, tiny_model, no_features_model, no_regions_model, edge_model]
+MODELS = [hand_model, tiny_model, no_features_model, no_regions_model, edge_model, coarse_model, half_pixel_model]
 
 
 @pytest.mark.parametrize("make", MODELS, ids=lambda f: f.__name__)
@@ -268,6 +282,57 @@ def test_st_bits_follow_image_size():
     assert quant.st_bits_for(512, 300) == 13  # 512 / 8191 ~ 1/16 px
     assert quant.st_bits_for(1920, 1080) == 15
     assert quant.st_bits_for(65535, 1) == 16
+    assert quant.st_bits_for(512, 300, 2) == 10  # Params.st_steps
+    assert quant.st_bits_for(100, 100, 2) == 8
+
+
+def test_coarse_steps_quantise_within_half_a_step():
+    m = coarse_model()
+    q = codec.quantize(m)
+    lab, lq = m.features.lab.astype(np.float64), q.features.lab.astype(np.float64)
+    inside = (np.abs(lab[:, 1:]) <= 120).all(axis=1) & (lab[:, 0] <= 99)
+    assert np.abs(lab[inside, 0] - lq[inside, 0]).max() <= 6 * 50 / 255 + 1e-5
+    assert np.abs(lab[inside, 1:] - lq[inside, 1:]).max() <= 4 + 1e-5
+    # values are multiples of the steps, clamped into the stored range
+    assert np.allclose(np.rint(lq[:, 0] * 255 / 100 / 6), lq[:, 0] * 255 / 100 / 6, atol=1e-4)
+    assert np.allclose(lq[:, 1:] / 8, np.rint(lq[:, 1:] / 8))
+    assert lq[:, 1:].min() >= -128 and lq[:, 1:].max() <= 127 and lq[:, 0].max() <= 100
+    steps = 2 ** quant.st_bits_for(m.width, m.height, 2) - 1
+    assert np.abs(m.features.st - q.features.st).max() <= 0.5 / steps + 1e-12
+    assert len(codec.encode(m)) < len(codec.encode(hand_model()))
+
+
+def test_encoder_picks_the_colour_lag():
+    def lag_of(m):
+        return msgpack.unpackb(raw_sections(codec.encode(m))[2])["lab_lag"]
+
+    m = edge_model(300)  # pairs first: i-2 is the same side of the edge
+    pairs = m.features.subset(np.arange(600))
+    assert lag_of(dataclasses.replace(m, features=pairs)) == 2
+    grid = m.features.subset(np.arange(600, len(m.features)))
+    assert lag_of(dataclasses.replace(m, features=grid)) == 1
+    for f in (pairs, grid):
+        mm = dataclasses.replace(m, features=f)
+        assert_models_identical(codec.decode(codec.encode(mm)), codec.quantize(mm))
+
+
+def test_outline_shift():
+    assert sections.xy_shift(np.array([[8, 4], [16, -12]])) == 2
+    assert sections.xy_shift(np.array([[8, 16], [64, -8]])) == 3
+    assert sections.xy_shift(np.array([[1, 4]])) == 0
+    assert sections.xy_shift(np.zeros((0, 2), np.int32)) == 3
+    shifted = msgpack.unpackb(raw_sections(codec.encode(half_pixel_model()))[1])
+    assert shifted["xy_shift"] == 2
+    # a shift that takes a stored coordinate beyond 32 bits is refused
+    data = codec.encode(half_pixel_model())
+    base = msgpack.unpackb(raw_sections(data)[1])
+    big = np.array([2**29, 0, 0, 0], np.int64)
+    xy = b"".join(sections.to_planes(sections.delta_zigzag(v.astype(np.int32), 4, 1), 4) for v in (big, big))
+    reject(assemble(data, {"regions": pack({**base, "xy_shift": 3, "xy": xy})}), "beyond the 32-bit range")
+    m = half_pixel_model()
+    m.regions[0].outline[0][1, 0] = 4.125
+    assert msgpack.unpackb(raw_sections(codec.encode(m))[1])["xy_shift"] == 0
+    assert_models_identical(codec.decode(codec.encode(m)), codec.quantize(m))
 
 
 def test_extra_order_does_not_change_bytes():
@@ -356,7 +421,8 @@ def models(draw) -> Model:
     params = Params(
         t_canny=draw(st.floats(0, 1e3)), t_super=draw(st.floats(0, 1e3)),
         kernel_size=draw(st.integers(1, 4096)), overlap=draw(st.floats(1e-6, 0.5)),
-        smoothing=draw(st.floats(0, 1)), extra=extra,
+        smoothing=draw(st.floats(0, 1)), st_steps=draw(st.integers(1, 64)),
+        l_step=draw(st.integers(1, 16)), ab_step=draw(st.integers(1, 16)), extra=extra,
     )
     features = Features(region=region, st=st_, lab=lab, kind=kind, pair=pair)
     return Model(width=width, height=height, regions=regions, features=features, params=params)
@@ -566,6 +632,9 @@ def test_params_validated():
         ({"kernel_size": 0}, "kernel_size = 0"),
         ({"overlap": 0.0}, "overlap = 0.0 not in (0.0, 0.5]"),
         ({"smoothing": -1.0}, "smoothing"),
+        ({"l_step": 0}, "l_step = 0"),
+        ({"ab_step": 17}, "ab_step = 17"),
+        ({"st_steps": 2.0}, "st_steps must be int"),
         ({"extra": {"x": [1]}}, "unsupported type list"),
         ({"extra": {"x": float("inf")}}, "not finite"),
         ({"extra": {"": 1}}, "extra key"),
@@ -596,6 +665,8 @@ def test_region_section_validated():
         ({"verts": bytes([5, 0, 0, 0])}, "5 vertices, header says 4"),
         ({"xy": b"\x00" * 7}, "xy has 7 bytes"),
         ({"ctrl": b""}, "ctrl has 0 bytes"),
+        ({"xy_shift": 4}, "xy_shift = 4 not in 0..3"),
+        ({"xy_shift": 1.0}, "xy_shift is not an int"),
     ]
     for change, match in cases:
         reject(assemble(data, {"regions": pack({**base, **change})}), match)
@@ -622,8 +693,19 @@ def test_feature_section_validated():
     base = msgpack.unpackb(raw_sections(codec.encode(m))[2])
     for change, match in [({"st_bits": 8.0}, "st_bits is not an int"),
                           ({"pair": b"\x00" * 7}, "pair has 7 bytes"),
-                          ({"lab": "x"}, "lab is not a bin")]:
+                          ({"lab": "x"}, "lab is not a bin"),
+                          ({"lab_lag": 0}, "lab_lag = 0 not in 1..8"),
+                          ({"lab_lag": True}, "lab_lag is not an int")]:
         reject(assemble(codec.encode(m), {"features": pack({**base, **change})}), match)
+    # colours beyond the range their steps allow
+    c = coarse_model()
+    q = quant.from_model(c)
+    bad = q.lab.copy()
+    bad[0, 0] = 255 // 6 + 1
+    reject(with_quantized(c, lab=bad), "out of range for l_step 6")
+    bad = q.lab.copy()
+    bad[1, 2] = 128 - 128 // 8 - 1
+    reject(with_quantized(c, lab=bad), "ab_step 8")
     # A pair index beyond the feature count, written directly as its code.
     code = sections.zigzag64(np.array([5, -1]))
     raw = pack({**base, "pair": sections.to_planes(code, 4)})

@@ -327,3 +327,65 @@ def test_property_region_colours_and_coverage(h, w, blocks, seed, tc, ts):
         ok = np.all(np.abs(win - fs.lab[k]) < 1e-4, axis=1) & (reg == fs.region[k])
         assert ok.any(), k
     assert_coverage(fs, index)
+
+
+# ------------------------------------------------------------------ lattice gradation
+
+
+def lattice_for(rgb, labels):
+    from tpsv.vectorize import build_geometry
+
+    g = build_geometry(labels)
+    return g, g.lattice(srgb_to_lab(rgb))
+
+
+def test_lattice_monotone_covering_and_in_range():
+    from tpsv.features import LatticeGradation
+
+    rgb = textured()
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    labels[:, 40:] = 1
+    g, lat = lattice_for(rgb, labels)
+    assert isinstance(lat, LatticeGradation)
+    prev_n, prev_pick = None, None
+    for t in (0.5, 5.0, 20.0, 60.0, 1e6):
+        fs = lat.features(t)
+        pick = lat.region_spacing(t)
+        assert fs.st is not None and np.all((fs.st >= 0) & (fs.st <= 1))
+        assert set(np.unique(fs.region)) == {0, 1}
+        assert np.all(fs.kind == GRADATION) and np.all(fs.pair == -1)
+        if prev_n is not None:
+            assert len(fs) <= prev_n and np.all(pick >= prev_pick)
+        prev_n, prev_pick = len(fs), pick
+    assert len(lat.features(0.5)) > len(lat.features(1e6))
+    # the coarsest: one spacing of LATTICE_PX per region, a feature per non-empty cell
+    assert np.all(lat.region_spacing(1e6) == len(lat.spacings) - 1)
+
+
+def test_lattice_features_are_cell_means_at_cell_centres():
+    rgb = textured(32, 40)
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    g, lat = lattice_for(rgb, labels)
+    fs = lat.features(1e6)  # the coarsest lattice for the single region
+    d = lat.spacings[-1]
+    nx, ny = lat._grid(d)[0]
+    assert len(fs) == nx * ny
+    st = g.pixel_st().reshape(-1, 2).astype(np.float64)
+    lab = srgb_to_lab(rgb).reshape(-1, 3)
+    ij = np.minimum((st * [nx, ny]).astype(int), [nx - 1, ny - 1])
+    for k in range(len(fs)):
+        ix, iy = np.minimum((fs.st[k] * [nx, ny]).astype(int), [nx - 1, ny - 1])
+        assert fs.st[k] == pytest.approx([(ix + 0.5) / nx, (iy + 0.5) / ny])
+        sel = (ij[:, 0] == ix) & (ij[:, 1] == iy)
+        assert np.allclose(fs.lab[k], lab[sel].mean(0), atol=1e-3)
+
+
+def test_lattice_cells_with_edges_are_subdivided():
+    rgb = textured()
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    g, lat = lattice_for(rgb, labels)
+    plain = lat.features(1e6)
+    edge = np.arange(10 * rgb.shape[1] + 5, 10 * rgb.shape[1] + 30)  # a row of pixels
+    more = lat.features(1e6, edge)
+    assert len(more) > len(plain)
+    assert np.all((more.st >= 0) & (more.st <= 1))

@@ -180,3 +180,21 @@ def test_search_accepts_w_directly_and_zero_iterations():
     assert [(h.t_canny, h.t_super) for h in res.history] == [(h.t_canny, h.t_super) for h in ref.history]
     none = monte_carlo_search(Counting(), (60.0, 10.0), iterations=0)
     assert none.history == [] and (none.t_canny, none.t_super) == (60.0, 10.0)
+
+
+def test_search_min_width_lets_small_thresholds_grow_back():
+    f = Counting()
+    start = (60.0, 10.0)
+    res = monte_carlo_search(f, start, iterations=40, seed=2, min_width=start)
+    best = res.history[0]
+    for h in res.history[1:]:
+        assert abs(h.t_canny - best.t_canny) <= max(abs(best.t_canny), start[0]) + 0.05
+        assert abs(h.t_super - best.t_super) <= max(abs(best.t_super), start[1]) + 0.05
+        if h.w > best.w:
+            best = h
+    assert res.w >= res.history[0].w
+    again = monte_carlo_search(Counting(), start, iterations=40, seed=2, min_width=start)
+    assert again.history == res.history
+    # from a best near the bottom of the range the draws still reach the start's scale
+    low = monte_carlo_search(Counting(), (9.0, 1.5), iterations=30, seed=0, min_width=(60.0, 10.0))
+    assert max(h.t_super for h in low.history) > 5.0

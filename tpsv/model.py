@@ -154,6 +154,17 @@ class Params:
     smoothing : float
         TPS smoothing term lambda added to the kernel diagonal (0: exact
         interpolation).
+    st_steps : int
+        Precision of the stored feature positions: about ``1 / st_steps`` px
+        across a patch as wide as the image (``docs/FORMAT.md``, S and T).
+    l_step, ab_step : int
+        Quantisation steps of the stored colours: ``L`` in units of
+        ``l_step * 100 / 255``, ``a`` and ``b`` in units of ``ab_step``
+        (1, 1: the finest the format stores).
+    extra : dict
+        Free key-value pairs (bool, int, float, str), stored as they are.
+        ``extra["scheme"] = "paper"`` marks a model made with the paper's
+        plain scheme (``tpsv.vectorize``).
     """
 
     t_canny: float = 40.0
@@ -161,6 +172,9 @@ class Params:
     kernel_size: int = 64
     overlap: float = 0.5
     smoothing: float = 0.0
+    st_steps: int = 16
+    l_step: int = 1
+    ab_step: int = 1
     extra: dict = field(default_factory=dict)
 
 

@@ -22,23 +22,28 @@ def vectorize_options(f):
                      help="N_total of the Monte Carlo threshold search."),
         click.option("--canny", "t_canny", type=float, default=None, help="Fix T_canny (0-255 gradient scale)."),
         click.option("--super", "t_super", type=float, default=None, help="Fix T_super (Lab variance)."),
-        click.option("--kernel-size", type=click.IntRange(8, 256), default=Params.kernel_size, show_default=True,
-                     help="Features per TPS kernel (K)."),
+        click.option("--kernel-size", type=click.IntRange(8, 128), default=None,
+                     help="Features per TPS kernel (K) [default: 32; 64 with --plain]."),
         click.option("--smoothing", type=click.FloatRange(0.0), default=Params.smoothing, show_default=True,
                      help="TPS smoothing term (0: exact interpolation)."),
+        click.option("--plain", is_flag=True, default=False,
+                     help="The paper's plain scheme: pairs on every Canny pixel, superpixel-boundary gradation "
+                          "features, sampled colours, finest quantisation (default: compact lattice features "
+                          "with fitted colours)."),
     ]
     for opt in reversed(opts):
         f = opt(f)
     return f
 
 
-def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, search, device):
+def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, search, device,
+                  plain=False):
     """Read inputs and vectorise; shared by ``vectorize`` and ``magnify``."""
-    from ..vectorize import vectorize as vectorize_image
+    from ..vectorize import scheme_params, vectorize as vectorize_image
 
     rgb = read_image(image)
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
-    params = Params(kernel_size=kernel_size, smoothing=smoothing)
+    params = scheme_params("paper" if plain else "tpsv", kernel_size=kernel_size, smoothing=smoothing)
     bar = None
     if search and progress_enabled(ctx):
         bar = click.progressbar(length=iterations, label="search", file=click.get_text_stream("stderr"))
@@ -75,6 +80,7 @@ def summary(rgb, result) -> dict:
         "w": metrics.efficiency(result.mse, n, w, h),
         "t_canny": m.params.t_canny,
         "t_super": m.params.t_super,
+        "scheme": m.params.extra.get("scheme", "tpsv"),
         "seconds": result.seconds,
     }
 
@@ -90,13 +96,13 @@ def summary(rgb, result) -> dict:
 @device_option
 @json_option
 @click.pass_context
-def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing,
+def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, plain,
               search, preview, device, as_json):
     """Vectorise IMAGE into a .tpsv hybrid vector image."""
     check_json_target(as_json, output)
     device = device_for(ctx, device)
     rgb, result = run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size,
-                                smoothing, search, device)
+                                smoothing, search, device, plain=plain)
     write_bytes_atomic(output, result.data)
     if preview:
         from ..preview import draw_preview

@@ -40,6 +40,9 @@ PARAM_FIELDS = {
     "kernel_size": (int, 1, 4096, False),
     "overlap": (float, 0.0, 0.5, True),
     "smoothing": (float, 0.0, math.inf, False),
+    "st_steps": (int, 1, 64, False),
+    "l_step": (int, 1, 16, False),
+    "ab_step": (int, 1, 16, False),
 }
 MAX_EXTRA_ITEMS = 256
 MAX_EXTRA_KEY = 256
@@ -74,7 +77,8 @@ class Quantized:
         ``S`` and ``T`` are integers in ``[0, 2**st_bits - 1]``.
     st : ndarray, shape (F, 2), int64
     lab : ndarray, shape (F, 3), uint8
-        ``round(L * 255 / 100)``, ``round(a) + 128``, ``round(b) + 128``.
+        ``round(L * 255 / 100 / l_step)``, ``round(a / ab_step) + 128``,
+        ``round(b / ab_step) + 128`` (steps from ``params``).
     kind : ndarray, shape (F,), uint8
     pair : ndarray, shape (F,), int64
     """
@@ -96,21 +100,28 @@ class Quantized:
     pair: np.ndarray
 
 
-def st_bits_for(width: int, height: int) -> int:
-    """Bits per S and T for an image: about 1/16 px across a full-width patch.
+def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) -> int:
+    """Bits per S and T for an image: about ``1 / steps_per_px`` px across a full-width patch.
 
     Parameters
     ----------
     width, height : int
         Image size in pixels.
+    steps_per_px : int
+        ``Params.st_steps`` (16 unless the model says otherwise).
 
     Returns
     -------
     int
-        ``clamp(bit_length(16 * max(width, height) - 1), 8, 16)``.
+        ``clamp(bit_length(steps_per_px * max(width, height) - 1), 8, 16)``.
     """
-    steps = ST_STEPS_PER_PX * max(int(width), int(height), 1)
+    steps = int(steps_per_px) * max(int(width), int(height), 1)
     return min(MAX_ST_BITS, max(MIN_ST_BITS, (steps - 1).bit_length()))
+
+
+def lab_limits(l_step: int, ab_step: int) -> tuple[int, int, int]:
+    """Largest stored ``l``, and the range ``lo..hi`` of stored ``A``/``B`` (u8 with offset 128)."""
+    return 255 // l_step, 128 - 128 // ab_step, 128 + 127 // ab_step
 
 
 # ---------------------------------------------------------------- model -> ints
@@ -128,11 +139,14 @@ def from_model(model: Model) -> Quantized:
     width, height = _as_int(model.width, "width"), _as_int(model.height, "height")
     regions = list(model.regions)
     grid, poly_counts, vert_counts, xy, ctrl, labels = _quantize_regions(regions)
+    params = quantize_params(model.params)
+    _validate_params(params, ValueError)
     counts, st_bits, st, lab, kind, pair = _quantize_features(
-        model.features, len(regions), st_bits_for(width, height)
+        model.features, len(regions), st_bits_for(width, height, params["st_steps"]),
+        params["l_step"], params["ab_step"],
     )
     return Quantized(
-        width=width, height=height, params=quantize_params(model.params),
+        width=width, height=height, params=params,
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
         xy=xy, ctrl=ctrl, feature_counts=counts, st_bits=st_bits, st=st, lab=lab,
         kind=kind, pair=pair,
@@ -205,7 +219,7 @@ def _column(values, shape_tail: tuple, n: int | None, what: str) -> np.ndarray:
     return a
 
 
-def _quantize_features(f: Features, n_regions: int, st_bits: int):
+def _quantize_features(f: Features, n_regions: int, st_bits: int, l_step: int = 1, ab_step: int = 1):
     region = _column(f.region, (), None, "region")
     n = region.shape[0]
     st = _column(f.st, (2,), n, "st").astype(np.float64)
@@ -225,8 +239,9 @@ def _quantize_features(f: Features, n_regions: int, st_bits: int):
     q = 2**st_bits - 1
     st_q = np.rint(np.clip(st, 0.0, 1.0) * q).astype(np.int64)
     lab_q = np.empty((n, 3), np.uint8)
-    lab_q[:, 0] = np.clip(np.rint(lab[:, 0] * (255.0 / 100.0)), 0, 255)
-    lab_q[:, 1:] = np.clip(np.rint(lab[:, 1:]), -128, 127) + 128
+    l_max, ab_lo, ab_hi = lab_limits(l_step, ab_step)
+    lab_q[:, 0] = np.clip(np.rint(lab[:, 0] * (255.0 / 100.0) / l_step), 0, l_max)
+    lab_q[:, 1:] = np.clip(np.rint(lab[:, 1:] / ab_step) + 128, ab_lo, ab_hi)
     kind = np.asarray(kind).astype(np.int64)
     if n and (kind.min() < 0 or kind.max() > 255):
         raise ValueError("features.kind out of range")
@@ -291,6 +306,7 @@ def validate(q: Quantized) -> None:
     TpsvFormatError
         The first rule broken, in one line.
     """
+    _validate_params(q.params)
     h = layout.Header(
         version=layout.VERSION, flags=0, width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
@@ -299,22 +315,21 @@ def validate(q: Quantized) -> None:
         compressed=(1, 1, 1), raw=(0, 0, 0),
     )
     layout.check_header_limits(h)
-    _validate_params(q.params)
     _validate_regions(q)
     _validate_features(q)
 
 
-def _validate_params(p: dict) -> None:
+def _validate_params(p: dict, error=TpsvFormatError) -> None:
     for name, (typ, lo, hi, lo_open) in PARAM_FIELDS.items():
         value = p[name]
         # bool is an int subclass; msgpack keeps them apart, so must we.
         if type(value) is not typ:
-            raise TpsvFormatError(f"params: {name} must be {typ.__name__}, got {type(value).__name__}")
+            raise error(f"params: {name} must be {typ.__name__}, got {type(value).__name__}")
         if typ is float and not math.isfinite(value):
-            raise TpsvFormatError(f"params: {name} is not finite")
+            raise error(f"params: {name} is not finite")
         if value < lo or value > hi or (lo_open and value == lo):
             bracket = "(" if lo_open else "["
-            raise TpsvFormatError(f"params: {name} = {value} not in {bracket}{lo}, {hi}]")
+            raise error(f"params: {name} = {value} not in {bracket}{lo}, {hi}]")
     extra = p["extra"]
     if len(extra) > MAX_EXTRA_ITEMS:
         raise TpsvFormatError(f"params: {len(extra)} extra items exceed the limit {MAX_EXTRA_ITEMS}")
@@ -366,6 +381,13 @@ def _validate_features(q: Quantized) -> None:
     bad = np.nonzero((q.st < 0) | (q.st > top))[0]
     if bad.size:
         raise TpsvFormatError(f"feature {bad[0]}: S or T beyond {top} (st_bits {q.st_bits})")
+    l_max, ab_lo, ab_hi = lab_limits(q.params["l_step"], q.params["ab_step"])
+    bad = np.nonzero((q.lab[:, 0] > l_max) | (q.lab[:, 1:] < ab_lo).any(1) | (q.lab[:, 1:] > ab_hi).any(1))[0]
+    if bad.size:
+        raise TpsvFormatError(
+            f"feature {bad[0]}: colour {q.lab[bad[0]].tolist()} out of range for "
+            f"l_step {q.params['l_step']}, ab_step {q.params['ab_step']}"
+        )
     bad = np.nonzero(q.kind > CURVILINEAR)[0]
     if bad.size:
         raise TpsvFormatError(f"feature {bad[0]}: kind {q.kind[bad[0]]} not in {{0, 1}}")
@@ -404,7 +426,7 @@ def to_model(q: Quantized) -> Model:
     params = Params(**{name: p[name] for name in PARAM_FIELDS}, extra=dict(p["extra"]))
     return Model(
         width=q.width, height=q.height, regions=_dequantize_regions(q),
-        features=_dequantize_features(q), params=params,
+        features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
     )
 
 
@@ -427,11 +449,11 @@ def _split(values: np.ndarray, counts: np.ndarray) -> list[np.ndarray]:
     return [piece.copy() for piece in np.split(values, np.cumsum(counts)[:-1])]
 
 
-def _dequantize_features(q: Quantized) -> Features:
+def _dequantize_features(q: Quantized, l_step: int = 1, ab_step: int = 1) -> Features:
     n = q.st.shape[0]
     lab = np.empty((n, 3), np.float64)
-    lab[:, 0] = q.lab[:, 0] * (100.0 / 255.0)
-    lab[:, 1:] = q.lab[:, 1:].astype(np.float64) - 128.0
+    lab[:, 0] = (q.lab[:, 0].astype(np.int64) * l_step) * (100.0 / 255.0)
+    lab[:, 1:] = (q.lab[:, 1:].astype(np.float64) - 128.0) * ab_step
     return Features(
         region=np.repeat(np.arange(q.feature_counts.size), q.feature_counts).astype(np.int32),
         st=q.st.astype(np.float64) / (2**q.st_bits - 1),

@@ -19,16 +19,23 @@ from .quant import PARAM_FIELDS, Quantized
 #: Lags of the delta coding of feature columns (measured on the samples).
 #: Curvilinear features come in adjacent pairs that straddle an edge: the
 #: position of feature i-1 (its partner, or the neighbouring pair) predicts S, T
-#: best, while colour is best predicted by feature i-2, the previous sample on
-#: the same side of the same edge.
+#: best. Colour is best predicted by feature i-2 (the previous sample on the
+#: same side of the same edge) when pairs dominate, by feature i-1 when
+#: features are in scan order with few pairs; the encoder writes the lag of
+#: ``LAB_LAGS`` whose codes are smaller (``lab_lag`` in the file).
 ST_LAG = 1
 LAB_LAG = 2
+LAB_LAGS = (1, 2)
+MAX_LAB_LAG = 8
+#: Outline coordinates are stored divided by ``2**xy_shift``, the largest power
+#: of two (at most ``2**MAX_XY_SHIFT``) dividing all of them.
+MAX_XY_SHIFT = 3
 #: Lag of outline and control-grid coordinates: neighbours along the polygon
 #: or along the grid row.
 GEOMETRY_LAG = 1
 
-REGION_KEYS = ("label", "grid", "polys", "verts", "xy", "ctrl")
-FEATURE_KEYS = ("st_bits", "count", "st", "lab", "kind", "pair")
+REGION_KEYS = ("label", "grid", "polys", "verts", "xy_shift", "xy", "ctrl")
+FEATURE_KEYS = ("st_bits", "count", "st", "lab_lag", "lab", "kind", "pair")
 PARAM_KEYS = tuple(PARAM_FIELDS) + ("extra",)
 
 _UNSIGNED = {1: np.uint8, 2: np.uint16, 4: np.uint32}
@@ -100,16 +107,40 @@ def pack_params(q: Quantized) -> bytes:
     return _packb({**{k: q.params[k] for k in PARAM_FIELDS}, "extra": dict(q.params["extra"])})
 
 
+def xy_shift(xy: np.ndarray) -> int:
+    """Largest ``k <= MAX_XY_SHIFT`` such that ``2**k`` divides every outline coordinate."""
+    xy = np.asarray(xy, np.int64)
+    k = 0
+    while k < MAX_XY_SHIFT and not np.any(xy & ((1 << (k + 1)) - 1)):
+        k += 1
+    return k
+
+
+def lab_lag(lab: np.ndarray) -> int:
+    """The lag of ``LAB_LAGS`` with the smallest sum of ``log2(1 + zigzag code)`` (first on ties)."""
+    best, cost = LAB_LAGS[0], None
+    for g in LAB_LAGS:
+        c = sum(
+            float(np.log2(1.0 + delta_zigzag(lab[:, k], 1, g).astype(np.float64)).sum()) for k in range(3)
+        )
+        if cost is None or c < cost:
+            best, cost = g, c
+    return best
+
+
 def pack_regions(q: Quantized) -> bytes:
     """The regions section: labels, grids, outlines and control vectors."""
     grid = (q.grid - 1).astype(np.uint8)
+    shift = xy_shift(q.xy)
+    xy = np.asarray(q.xy, np.int64) >> shift
     return _packb({
         "label": list(q.labels),
         "grid": grid[:, 0].tobytes() + grid[:, 1].tobytes(),
         "polys": to_planes(q.poly_counts, 4),
         "verts": to_planes(q.vert_counts, 4),
+        "xy_shift": shift,
         "xy": b"".join(
-            to_planes(delta_zigzag(q.xy[:, k], 4, GEOMETRY_LAG), 4) for k in range(2)
+            to_planes(delta_zigzag(xy[:, k].astype(np.int32), 4, GEOMETRY_LAG), 4) for k in range(2)
         ),
         "ctrl": to_planes(delta_zigzag(_ctrl_planar(q), 4, GEOMETRY_LAG), 4),
     })
@@ -148,14 +179,16 @@ def pack_features(q: Quantized) -> bytes:
     """The features section: columns of S, T, Lab, kind and pair."""
     n = q.st.shape[0]
     pair_code = np.where(q.pair >= 0, zigzag64(q.pair - np.arange(n)), 0)
+    lag = lab_lag(q.lab)
     return _packb({
         "st_bits": int(q.st_bits),
         "count": to_planes(q.feature_counts, 4),
         "st": b"".join(
             to_planes(delta_zigzag(q.st[:, k], 2, ST_LAG), 2) for k in range(2)
         ),
+        "lab_lag": lag,
         "lab": b"".join(
-            delta_zigzag(q.lab[:, k], 1, LAB_LAG).tobytes() for k in range(3)
+            delta_zigzag(q.lab[:, k], 1, lag).tobytes() for k in range(3)
         ),
         "kind": q.kind.astype(np.uint8).tobytes(),
         "pair": to_planes(pair_code, 4),
@@ -213,6 +246,15 @@ def _expect_bin(obj: dict, key: str, size: int, name: str) -> bytes:
     return value
 
 
+def _expect_int(obj: dict, key: str, lo: int, hi: int, name: str) -> int:
+    value = obj[key]
+    if type(value) is not int:
+        raise TpsvFormatError(f"section {name}: {key} is not an int")
+    if not lo <= value <= hi:
+        raise TpsvFormatError(f"section {name}: {key} = {value} not in {lo}..{hi}")
+    return value
+
+
 def unpack_params(raw: bytes) -> dict:
     """Params dict from the params section (types are checked by validate)."""
     obj = _expect_map(unpack(raw, "params"), PARAM_KEYS, "params")
@@ -252,11 +294,16 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
             f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {h.vertices}"
         )
     v = h.vertices
+    shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT, name)
     xy_buf = _expect_bin(obj, "xy", 8 * v, name)
     xy = np.stack([
         undelta_zigzag(from_planes(xy_buf[4 * v * k:4 * v * (k + 1)], v, 4), 4, GEOMETRY_LAG)
         for k in range(2)
-    ], axis=1)
+    ], axis=1).astype(np.int64)
+    lim = 2**31 >> shift
+    if v and (xy.min() < -lim or xy.max() >= lim):
+        raise TpsvFormatError(f"section {name}: outline coordinate beyond the 32-bit range after xy_shift {shift}")
+    xy = (xy << shift).astype(np.int32)
     c = 8 * h.ctrl_points
     ctrl = undelta_zigzag(
         from_planes(_expect_bin(obj, "ctrl", 4 * c, name), c, 4), 4, GEOMETRY_LAG
@@ -282,9 +329,10 @@ def unpack_features(raw: bytes, h: layout.Header) -> dict:
         .view(np.uint16)
         for k in range(2)
     ], axis=1).astype(np.int64)
+    lag = _expect_int(obj, "lab_lag", 1, MAX_LAB_LAG, name)
     lab_buf = _expect_bin(obj, "lab", 3 * n, name)
     lab = np.stack([
-        undelta_zigzag(np.frombuffer(lab_buf[n * k:n * (k + 1)], np.uint8), 1, LAB_LAG)
+        undelta_zigzag(np.frombuffer(lab_buf[n * k:n * (k + 1)], np.uint8), 1, lag)
         .view(np.uint8)
         for k in range(3)
     ], axis=1)

@@ -1,0 +1,580 @@
+"""Least-squares feature colours (the render is linear in them).
+
+A render at scale 1 is, per Lab channel, ``img(x) = sum_k beta_k(x) f_k(x)``
+where ``f_k`` is kernel ``k``'s TPS through its features' colours and
+``beta_k`` the blend weights (``tpsv.tps``). A TPS is linear in the values it
+interpolates: ``f_k(x) = b_k(x)^T Z_k h_k`` with ``b_k(x) = [phi(|x - p_i|)
+..., 1, u, v]`` in the kernel's local frame and ``Z_k = M_k^{-1} [I; 0]`` the
+first ``K`` columns of the inverse of the kernel's symmetric system of Eq. (4)
+(its cardinal functions). So the whole render is ``img = A h`` with a sparse
+``A`` (pixels x features) and the colours ``h`` can be *fitted* to the image
+instead of sampled from it.
+
+What is minimised (one Gauss-Newton step on the sRGB error)
+-----------------------------------------------------------
+The error the user sees is in 8-bit sRGB while the model is in Lab, so the
+residual of pixel ``x`` is linearised at the image colour: ``J_x (A_x h -
+lab_x)`` with ``J_x`` the 3 x 3 Jacobian of Lab -> sRGB at ``lab_x``. The fit
+minimises ``sum_x |J_x (A_x h - lab_x)|^2 + mu |h - h0|^2`` (``h0`` the
+sampled colours; the small ``mu`` keeps features that no pixel sees where
+they are) by preconditioned conjugate gradients (Jacobi preconditioner)
+started at ``h0``. The result is clipped to the Lab ranges the file stores.
+
+Pixels come from the renderer's own maps at scale 1 (outline rasterisation and
+the Warp inverse patch map), so every pixel is fitted through the kernels of
+its own region only: a feature never influences another region, as in the
+render. Degenerate kernels (affine fallback) are linear in ``h`` too and are
+fitted the same way.
+
+The range clamp of the rasteriser (``clamp=True``) is not linear; the fit
+ignores it. The clamp bounds every kernel by its features' colour range, and
+fitted colours of edge pairs spread that range, so the clamp then cuts little:
+measured on the samples, the fitted model renders within a few hundredths of
+a dB with and without it (``tpsv bench`` / docs/DESIGN.md).
+
+Cost: ``A`` holds ``K`` numbers per (pixel, covering kernel): about
+``(1 + 2 overlap)^2 K`` per pixel. Pixels are processed kernel by kernel and
+the fit is skipped beyond :data:`MAX_NNZ` stored numbers (pixels are then
+subsampled on a regular lattice to stay under it).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import tps
+from .color import srgb_to_lab
+
+#: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
+MAX_NNZ = 40_000_000
+
+
+@dataclass
+class FitReport:
+    """How a fit went."""
+
+    iterations: int
+    seconds: float
+    nnz: int
+    residual0: float
+    residual: float
+    subsample: int
+    mse: float = float("nan")
+    kernels: object = None  # the tps.KernelSet the fit used (positions as the model's)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def pixel_maps(model, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
+    """Region index (H, W) int32 and ``(S, T)`` (H, W, 2) float32 of every pixel at scale 1, as rendered."""
+    from . import outline
+    from .gpu.patchmap import inverse_map_numpy
+
+    index = outline.rasterize_regions(model.regions, model.width, model.height, src_size=(model.width, model.height))
+    st = inverse_map_numpy([r.patch for r in model.regions], index, (model.width, model.height), device=device)
+    return index.astype(np.int32), st.astype(np.float32)
+
+
+def lab_to_srgb_jacobian(lab: np.ndarray) -> np.ndarray:
+    """``d sRGB / d Lab`` (n, 3, 3) of ``tpsv.color.lab_to_srgb`` (0 where sRGB clips)."""
+    from .color import _WHITE, _XYZ2RGB
+
+    lab = np.asarray(lab, np.float64).reshape(-1, 3)
+    fy = (lab[:, 0] + 16.0) / 116.0
+    f = np.stack([fy + lab[:, 1] / 500.0, fy, fy - lab[:, 2] / 200.0], 1)
+    cube = f > 0.206893
+    xyz = np.where(cube, f**3, (f - 16.0 / 116.0) / 7.787) * _WHITE
+    dxyz_df = np.where(cube, 3.0 * f * f, 1.0 / 7.787) * _WHITE  # (n, 3)
+    # df / dLab: rows fx, fy, fz; columns L, a, b
+    df = np.array([[1 / 116.0, 1 / 500.0, 0.0], [1 / 116.0, 0.0, 0.0], [1 / 116.0, 0.0, -1 / 200.0]])
+    lin = xyz @ _XYZ2RGB.T
+    c = np.maximum(lin, 0.0)
+    srgb = np.where(c > 0.0031308, 1.055 * np.power(np.maximum(c, 1e-12), 1.0 / 2.4) - 0.055, 12.92 * c)
+    dg = np.where(c > 0.0031308, 1.055 / 2.4 * np.power(np.maximum(c, 1e-12), 1.0 / 2.4 - 1.0), 12.92)
+    dg = np.where((lin < 0.0) | (srgb > 1.0), 0.0, dg)
+    # J = diag(dg) XYZ2RGB diag(dxyz_df) df
+    J = np.einsum("ni,ij,nj,jk->nik", dg, _XYZ2RGB, dxyz_df, df)
+    return J
+
+
+@dataclass
+class FitTarget:
+    """What a fit compares with: the image at a lattice of pixels (computed once per image).
+
+    Attributes
+    ----------
+    rows : ndarray (n,) int64
+        Flat pixel indices fitted (every ``sub``-th pixel in x and y, inside a region).
+    region : ndarray (n,) int32
+    st : ndarray (n, 2) float64
+        ``(S, T)`` of each pixel in its region's patch.
+    lab : ndarray (n, 3) float64
+        Image colour (Lab).
+    W : ndarray (n, 3, 3) float64
+        ``J^T J`` with ``J`` the Jacobian of Lab -> sRGB at the image colour.
+    sub : int
+    """
+
+    rows: np.ndarray
+    region: np.ndarray
+    st: np.ndarray
+    lab: np.ndarray
+    W: np.ndarray
+    sub: int
+
+
+def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1) -> FitTarget:
+    """A :class:`FitTarget` from the image and the pixel maps at scale 1 (``pixel_maps``)."""
+    rgb = np.asarray(rgb)
+    if rgb.dtype == np.uint8:
+        rgb = rgb.astype(np.float32) / 255.0
+    h, w = index.shape
+    ys, xs = np.mgrid[0:h:sub, 0:w:sub]
+    rows = (ys * w + xs).ravel()
+    reg = np.asarray(index).ravel()[rows]
+    rows = rows[reg >= 0]
+    reg = reg[reg >= 0]
+    lab = srgb_to_lab(np.asarray(rgb, np.float32)[..., :3].reshape(-1, 3)[rows][None])[0].astype(np.float64)
+    J = lab_to_srgb_jacobian(lab)
+    W = np.einsum("nij,nik->njk", J, J)
+    return FitTarget(
+        rows=rows, region=reg.astype(np.int32), st=np.asarray(st, np.float64).reshape(-1, 2)[rows],
+        lab=lab, W=W, sub=int(sub),
+    )
+
+
+def _phi_into(d2: np.ndarray, out: np.ndarray) -> None:
+    """``out = phi(r) = 0.5 r^2 log r^2`` from ``d2 = r^2`` (0 at 0); ``d2`` is overwritten."""
+    tiny = np.finfo(d2.dtype).tiny
+    lg = np.log(np.maximum(d2, tiny))
+    np.multiply(d2, lg, out=d2)
+    np.multiply(d2, 0.5, out=out)
+
+
+def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
+    """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K).
+
+    ``Z[k] @ h`` gives kernel ``k``'s coefficients ``[w_1..w_K, b0, b_u, b_v]``
+    in its local frame for slot values ``h`` (inactive slots: zero rows and
+    columns). Positions are rounded to float32 like the device solver's.
+    """
+    n, K = ks.n_kernels, ks.kernel_size
+    mask = ks.index >= 0
+    idx = np.maximum(ks.index, 0)
+    st = ks.st[idx]  # (n, K, 2)
+    fr = ks.frame
+    P = np.stack([(st[..., 0] - fr[:, None, 0]) * fr[:, None, 2], (st[..., 1] - fr[:, None, 1]) * fr[:, None, 3]], -1)
+    P = np.where(mask[..., None], P.astype(np.float32).astype(np.float64), 0.0)
+    Z = np.zeros((n, K + 3, K))
+    if n == 0:
+        return P, Z
+    from .gpu.tps import kernel_lambda
+
+    lam = kernel_lambda(ks)
+    ok = ~ks.degenerate
+    if ok.any():
+        Pk = P[ok]
+        mk = mask[ok]
+        nk = Pk.shape[0]
+        px, py = Pk[..., 0], Pk[..., 1]
+        d2 = (px[:, :, None] - px[:, None, :]) ** 2
+        d2 += (py[:, :, None] - py[:, None, :]) ** 2
+        M = np.empty((nk, K + 3, K + 3))
+        _phi_into(d2, M[:, :K, :K])
+        M[:, :K, :K] *= mk[:, :, None]
+        M[:, :K, :K] *= mk[:, None, :]
+        ii = np.arange(K)
+        M[:, ii, ii] = np.where(mk, lam[ok][:, None], 1.0)
+        M[:, :K, K] = mk
+        M[:, :K, K + 1] = px * mk
+        M[:, :K, K + 2] = py * mk
+        M[:, K:, :K] = M[:, :K, K:].transpose(0, 2, 1)
+        M[:, K:, K:] = 0.0
+        E = np.zeros((nk, K + 3, K))
+        E[:, ii, ii] = mk
+        try:
+            Zk = np.linalg.solve(M, E)
+        except np.linalg.LinAlgError:
+            Zk = np.stack([np.linalg.lstsq(m, e, rcond=None)[0] for m, e in zip(M, E)])
+        Zk[~np.isfinite(Zk)] = 0.0
+        Z[ok] = Zk
+    for k in np.nonzero(~ok)[0]:
+        # affine fallback of tpsv.gpu.tps._finish: linear along anchors 0 -> 1, constant across
+        m = int(ks.count[k])
+        if m == 0:
+            continue
+        p = P[k, :m]
+        cen = p.mean(0)
+        dvec = np.array([1.0, 0.0])
+        if m >= 2:
+            e = p[1] - p[0]
+            ln = float(np.hypot(*e))
+            if ln > 0:
+                dvec = e / ln
+        t = (p - cen) @ dvec
+        stt = float(t @ t)
+        Z[k, K, :m] = 1.0 / m
+        if stt > 0:
+            Z[k, K, :m] -= t * float(cen @ dvec) / stt
+            Z[k, K + 1, :m] = t * dvec[0] / stt
+            Z[k, K + 2, :m] = t * dvec[1] / stt
+    return P, Z
+
+
+# --------------------------------------------------------------------------- design matrix
+
+
+def _threads() -> int:
+    import os
+
+    return max(1, min(8, os.cpu_count() or 1))
+
+
+def _chunks(bounds: np.ndarray, parts: int) -> list[tuple[int, int]]:
+    """Split kernels ``0..n_k`` into ``parts`` ranges of about equal entry counts."""
+    nk = bounds.size - 1
+    if nk <= 0:
+        return []
+    cuts = np.searchsorted(bounds, np.linspace(0, bounds[-1], parts + 1)[1:-1])
+    edges = np.unique(np.concatenate([[0], np.clip(cuts, 0, nk), [nk]]))
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def _parallel(fn, ranges):
+    if len(ranges) <= 1:
+        return [fn(*r) for r in ranges]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=len(ranges)) as pool:
+        return list(pool.map(lambda r: fn(*r), ranges))
+
+
+@dataclass
+class Design:
+    """``A`` (pixels x features) as dense blocks, one per kernel.
+
+    Entry ``e`` (a pixel covered by a kernel) holds ``K`` coefficients
+    ``data[e]`` for the kernel's slots ``index[kernel]``; entries are sorted
+    by kernel (``bounds``), ``pix[e]`` is the fitted pixel of the entry.
+    """
+
+    data: np.ndarray  # (entries, K) float32
+    pix: np.ndarray  # (entries,) int64
+    bounds: np.ndarray  # (n_k + 1,)
+    index: np.ndarray  # (n_k, K) feature per slot (inactive: 0, with zero data)
+    n_pix: int
+    n_features: int
+
+    def _ranges(self):
+        return _chunks(self.bounds, _threads())
+
+    def forward(self, H: np.ndarray) -> np.ndarray:
+        """``A H``: (n_pix, c) for H (F, c)."""
+        H32 = np.asarray(H, np.float32)
+        G = H32[self.index]  # (n_k, K, c)
+        Y = np.empty((self.data.shape[0], H32.shape[1]), np.float32)
+        b = self.bounds
+
+        def work(k0, k1):
+            for k in range(k0, k1):
+                if b[k + 1] > b[k]:
+                    np.matmul(self.data[b[k]:b[k + 1]], G[k], out=Y[b[k]:b[k + 1]])
+
+        _parallel(work, self._ranges())
+        out = np.empty((self.n_pix, H32.shape[1]))
+        for c in range(H32.shape[1]):
+            out[:, c] = np.bincount(self.pix, Y[:, c], self.n_pix)
+        return out
+
+    def adjoint(self, R: np.ndarray) -> np.ndarray:
+        """``A^T R`` for R (n_pix, c): (F, c)."""
+        Re = np.asarray(R, np.float32)[self.pix]
+        G = np.zeros((self.index.shape[0], self.index.shape[1], Re.shape[1]), np.float32)
+        b = self.bounds
+
+        def work(k0, k1):
+            for k in range(k0, k1):
+                if b[k + 1] > b[k]:
+                    np.matmul(self.data[b[k]:b[k + 1]].T, Re[b[k]:b[k + 1]], out=G[k])
+
+        _parallel(work, self._ranges())
+        flat = self.index.ravel()
+        out = np.empty((self.n_features, Re.shape[1]))
+        for c in range(Re.shape[1]):
+            out[:, c] = np.bincount(flat, G[..., c].ravel().astype(np.float64), self.n_features)
+        return out
+
+    def column_sq(self, Wd: np.ndarray) -> np.ndarray:
+        """``sum_e data[e, j]^2 Wd[pix_e]`` per feature (F, c): the Jacobi diagonal, overlaps ignored."""
+        sq = self.data * self.data
+        return self.adjoint_sq(sq, Wd)
+
+    def adjoint_sq(self, sq, Wd):
+        Re = np.asarray(Wd, np.float32)[self.pix]
+        G = np.zeros((self.index.shape[0], self.index.shape[1], Re.shape[1]), np.float32)
+        b = self.bounds
+
+        def work(k0, k1):
+            for k in range(k0, k1):
+                if b[k + 1] > b[k]:
+                    np.matmul(sq[b[k]:b[k + 1]].T, Re[b[k]:b[k + 1]], out=G[k])
+
+        _parallel(work, self._ranges())
+        flat = self.index.ravel()
+        out = np.empty((self.n_features, Re.shape[1]))
+        for c in range(Re.shape[1]):
+            out[:, c] = np.bincount(flat, G[..., c].ravel().astype(np.float64), self.n_features)
+        return out
+
+
+def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple[Design, int]:
+    """The render operator at the given points (region (n,), st (n, 2)).
+
+    Returns the design and its number of stored coefficients.
+    """
+    n = region.shape[0]
+    F = ks.st.shape[0]
+    K = ks.kernel_size
+    kid, bw = tps.blend_weights(ks, region, st)
+    P, Z = cardinal_matrices(ks)
+    use = kid >= 0
+    e_pix = np.broadcast_to(np.arange(n)[:, None], kid.shape)[use]
+    e_k = kid[use]
+    e_w = bw[use]
+    order = np.argsort(e_k, kind="stable")
+    e_pix, e_k, e_w = e_pix[order], e_k[order], e_w[order].astype(np.float32)
+    bounds = np.searchsorted(e_k, np.arange(ks.n_kernels + 1))
+    ne = e_pix.size
+    fr = ks.frame[e_k]
+    q = np.asarray(st, np.float64)[e_pix]
+    u = ((q[:, 0] - fr[:, 0]) * fr[:, 2]).astype(np.float32)
+    v = ((q[:, 1] - fr[:, 1]) * fr[:, 3]).astype(np.float32)
+    P32 = P.astype(np.float32)
+    Zc = Z.astype(np.float32)  # (n_k, K + 3, K)
+    data = np.empty((ne, K), np.float32)
+    counts = np.diff(bounds)
+    # kernels in groups of similar entry counts, each group one padded batch
+    order_k = np.argsort(counts, kind="stable")
+    order_k = order_k[counts[order_k] > 0]
+    budget = 2_000_000  # padded entries x slots per batch
+    groups = []
+    i = 0
+    nk = order_k.size
+    while i < nk:
+        j = i + 1
+        top = int(counts[order_k[i]])
+        while j < nk and (j - i + 1) * int(counts[order_k[j]]) * (K + 3) <= budget and counts[order_k[j]] <= 1.25 * top + 8:
+            j += 1
+        groups.append(order_k[i:j])
+        i = j
+
+    def batch(ks_):
+        me = int(counts[ks_].max())
+        pos = bounds[ks_][:, None] + np.arange(me)[None, :]  # (b, me)
+        valid = np.arange(me)[None, :] < counts[ks_][:, None]
+        pos = np.where(valid, pos, bounds[ks_][:, None])
+        ub, vb = u[pos], v[pos]  # (b, me)
+        pk = P32[ks_]  # (b, K, 2)
+        d2 = (ub[:, :, None] - pk[:, None, :, 0]) ** 2
+        d2 += (vb[:, :, None] - pk[:, None, :, 1]) ** 2
+        B = np.empty((len(ks_), me, K + 3), np.float32)
+        _phi_into(d2, B[:, :, :K])
+        B[:, :, K] = 1.0
+        B[:, :, K + 1] = ub
+        B[:, :, K + 2] = vb
+        out = np.matmul(B, Zc[ks_])  # (b, me, K)
+        out *= np.where(valid, e_w[pos], 0.0)[:, :, None]
+        data[pos[valid]] = out[valid]
+
+    if len(groups) > 1 and _threads() > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=_threads()) as pool:
+            list(pool.map(batch, groups))
+    else:
+        for g in groups:
+            batch(g)
+    index = np.where(ks.index >= 0, ks.index, 0).astype(np.int64)
+    des = Design(data=data, pix=e_pix.astype(np.int64), bounds=bounds, index=index, n_pix=n, n_features=F)
+    return des, ne * K
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def fit_colors(
+    model,
+    rgb: np.ndarray | None = None,
+    *,
+    target: FitTarget | None = None,
+    iterations: int = 6,
+    mu: float = 1e-6,
+    tol: float = 1e-3,
+    device: str = "cpu",
+    maps: tuple[np.ndarray, np.ndarray] | None = None,
+    kernels: tps.KernelSet | None = None,
+    max_nnz: int = MAX_NNZ,
+):
+    """Feature colours fitted by least squares to ``rgb`` (see the module doc).
+
+    Parameters
+    ----------
+    model : Model
+        Positions are kept; colours are the starting point.
+    rgb : ndarray (H, W, 3) float in [0, 1], the model's size (or give ``target``).
+    target : FitTarget, optional
+        The image at the fitted pixels, when the caller has it (it depends on
+        the image and the regions only, so a search computes it once).
+    iterations : int
+        Conjugate-gradient iterations at most (6 reach within 0.05 dB of 30 on
+        the samples: the start, the sampled colours, is close).
+    mu : float
+        Weight of ``|h - h0|^2`` relative to the per-pixel sRGB error.
+    tol : float
+        Stop when the preconditioned residual norm falls below ``tol`` times its start.
+    maps : (index, st), optional
+        The pixel maps of :func:`pixel_maps`, when the caller has them.
+    kernels : KernelSet, optional
+        ``tps.group_kernels(model)`` when the caller has it.
+
+    Returns
+    -------
+    (Model, FitReport)
+        A new model with fitted ``features.lab`` (float32, clipped to the
+        stored Lab ranges); features merged away by the grouping (duplicates)
+        take their representative's colour. ``FitReport.mse`` estimates the
+        sRGB mean squared error at the fitted pixels (linearised, no range
+        clamp, no 8-bit rounding).
+    """
+    t0 = time.perf_counter()
+    F = len(model.features)
+    if F == 0:
+        return model, FitReport(0, 0.0, 0, 0.0, 0.0, 1, float("nan"), None)
+    ks = kernels if kernels is not None else tps.group_kernels(model)
+    if target is None:
+        index, st = maps if maps is not None else pixel_maps(model, device)
+        per_px = (1.0 + 2.0 * ks.overlap) ** 2 * ks.kernel_size
+        sub = 1
+        while (model.height // sub) * (model.width // sub) * per_px > max_nnz:
+            sub += 1
+        target = fit_target(rgb, index, st, sub)
+    inside = ks.grid[np.maximum(target.region, 0), 0] > 0
+    sel = np.nonzero(inside)[0]
+    des, nnz = build_design(ks, target.region[sel], target.st[sel])
+    W = target.W[sel]
+    lab_t = target.lab[sel]
+
+    h0 = ks.lab.astype(np.float64).copy()
+    used = np.zeros(F, bool)
+    used[ks.index[ks.index >= 0]] = True
+    mu_eff = float(mu) * max(des.n_pix, 1) / max(F, 1)
+
+    def wmul(Y):
+        return W[:, :, 0] * Y[:, 0:1] + W[:, :, 1] * Y[:, 1:2] + W[:, :, 2] * Y[:, 2:3]
+
+    def normal(X):
+        return des.adjoint(wmul(des.forward(X))) + mu_eff * X
+
+    rhs = des.adjoint(wmul(lab_t)) + mu_eff * h0
+    # Jacobi preconditioner: diag of A^T W A, ignoring overlaps of duplicate columns
+    Wd = np.ascontiguousarray(W[:, [0, 1, 2], [0, 1, 2]], np.float32)
+    diag = des.column_sq(Wd) + mu_eff
+    Minv = 1.0 / np.maximum(diag, 1e-12)
+
+    # Conjugate gradients run per region: A has no entry linking a pixel to
+    # another region's features, so the normal matrix is block diagonal and
+    # per-region step lengths keep every region's iterates independent of the
+    # others' (a feature's fitted colour never depends on another region).
+    freg = np.asarray(model.features.region, np.int64)
+    R_n = int(freg.max()) + 1 if F else 0
+
+    def rdot(a, b):
+        return np.bincount(freg, (a * b).sum(axis=1), R_n)
+
+    X = h0.copy()
+    R = rhs - normal(X)
+    Zr = Minv * R
+    Pd = Zr.copy()
+    rz = rdot(R, Zr)
+    rz0 = rz.copy()
+    res0 = float(np.sqrt(max(rz.sum(), 0.0)))
+    active = rz > 0
+    it = 0
+    for it in range(1, iterations + 1):
+        if not active.any():
+            it -= 1
+            break
+        Q = normal(Pd)
+        pq = rdot(Pd, Q)
+        active &= pq > 0
+        alpha = np.where(active, rz / np.where(active, pq, 1.0), 0.0)
+        X += alpha[freg][:, None] * Pd
+        R -= alpha[freg][:, None] * Q
+        Zr = Minv * R
+        rz_new = rdot(R, Zr)
+        beta = np.where(active, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
+        active &= rz_new > (tol**2) * rz0
+        Pd = Zr + beta[freg][:, None] * Pd
+        rz = np.where(active, rz_new, rz)
+    rz = float(np.sum(rz))
+    X[~used] = h0[~used]
+    X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
+    X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
+    res = des.forward(X) - lab_t
+    mse = float((res * wmul(res)).sum() / (3.0 * max(res.shape[0], 1)))
+    lab = _spread_merged(model, ks, X.astype(np.float32))
+    out = replace(model, features=replace(model.features, lab=lab))
+    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, float(np.sqrt(max(rz, 0.0))), target.sub, mse, ks)
+
+
+def recolor_kernels(ks: tps.KernelSet, model) -> tps.KernelSet:
+    """``ks`` (grouped from a model with the same features' positions) with ``model``'s colours.
+
+    Equal to ``tps.group_kernels(model)`` when ``model`` has the positions, regions
+    and parameters ``ks`` was grouped from (the grouping depends on nothing else):
+    duplicates' representatives take their group's mean colour, as there.
+    """
+    f = model.features
+    F = len(f)
+    lab = np.asarray(f.lab, np.float32).reshape(F, 3).copy()
+    reg = np.asarray(f.region, np.int64)
+    st = np.asarray(f.st, np.float64).reshape(F, 2)
+    keep = np.ones(F, bool)
+    if F > 1:
+        o = np.lexsort((st[:, 1], st[:, 0], reg))
+        a, b = o[1:], o[:-1]
+        same = (reg[a] == reg[b]) & (st[a, 0] == st[b, 0]) & (st[a, 1] == st[b, 1])
+        if same.any():
+            gid = np.concatenate([[0], np.cumsum(~same)])
+            first = o[np.concatenate([[True], ~same])]
+            cnt = np.bincount(gid)[:, None]
+            lab_sum = np.zeros((first.size, 3))
+            np.add.at(lab_sum, gid, lab[o].astype(np.float64))
+            lab[first] = (lab_sum / cnt).astype(np.float32)
+            keep[:] = False
+            keep[first] = True
+    fill_lab = lab[keep].astype(np.float64).mean(0) if F else np.array([50.0, 0.0, 0.0])
+    fill = np.broadcast_to(fill_lab.astype(np.float32), ks.fill.shape).copy()
+    return replace(ks, lab=lab, fill=fill)
+
+
+def _spread_merged(model, ks, lab: np.ndarray) -> np.ndarray:
+    """Give features that the grouping merged away their representative's fitted colour."""
+    f = model.features
+    F = len(f)
+    used = np.zeros(F, bool)
+    used[ks.index[ks.index >= 0]] = True
+    if used.all():
+        return lab
+    key = np.column_stack([f.region.astype(np.float64), f.st])
+    o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    same = np.concatenate([[False], (np.diff(key[o], axis=0) == 0).all(1)])
+    gid = np.cumsum(~same) - 1
+    rep = o[~same]
+    lab = lab.copy()
+    lab[o] = lab[rep[gid]]
+    return lab
