@@ -61,6 +61,19 @@ its own outline), or on the image frame. They are thinned to one per 2x2 block
 of pixels per region (``thin``), about every 2nd pixel along a boundary; the
 count is monotone in the boundary set, hence in ``T_super``.
 
+Lattice gradation features (the ``tpsv`` scheme's reading of IV-C2)
+-------------------------------------------------------------------
+:class:`LatticeGradation` places gradation features on a regular lattice of
+each region's ``(S, T)`` square, one per cell at its centre with the cell's
+mean colour, the spacing chosen per region from :data:`LATTICE_PX` by
+``T_super`` (the coarsest whose cells' RMS deviation, averaged over the
+region, is at most ``T_super``); cells holding a curvilinear feature are cut
+down to :data:`EDGE_PX`. These features are defined in the patch, not at a
+pixel (``FeatureSet.st``); their ``xy`` is ``M(S, T)``. With colours fitted
+to the image (``tpsv.fit``) a regular spread of features is the better
+basis, and lattice positions cost almost nothing to store (measurements in
+the class doc and in ``tpsv.vectorize``).
+
 Every region with at least 3 pixels gets at least 3 non-collinear features (the
 TPS affine part needs them): a region whose features are fewer or collinear
 gets its extreme pixels as extra features; a straight 1-px line gets three

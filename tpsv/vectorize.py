@@ -64,10 +64,10 @@ CURVE_STEP = 2
 #: iterations) and for the final model (every pixel).
 SEARCH_FIT_SUB = 2
 SEARCH_FIT_ITERATIONS = 3
-FINAL_FIT_ITERATIONS = 12
+FINAL_FIT_ITERATIONS = 10
 #: The start is fitted on every pixel too unless the search found it this many
 #: times less efficient than its best (see ``vectorize``).
-START_MARGIN = 2.0
+START_MARGIN = 1.5
 #: Colour quantisation steps (l_step, ab_step) the "tpsv" scheme chooses from
 #: after the search, by the same efficiency w.
 STEP_CHOICES = ((2, 4), (4, 8), (8, 8), (8, 16), (12, 16), (16, 16))
