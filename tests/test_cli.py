@@ -164,3 +164,37 @@ def test_render_stdout(tpsv_file):
     r = CliRunner().invoke(main, ["render", str(tpsv_file), "-o", "-"])
     assert r.exit_code == 0
     assert r.stdout_bytes[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_segment_auto_and_strokes(tmp_path, small_png, small_rgb):
+    out = tmp_path / "labels.png"
+    prev = tmp_path / "prev.png"
+    r = run("segment", small_png, "-o", out, "--regions", 3, "--preview", prev, "--json")
+    assert r.exit_code == 0, r.output
+    lab = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert lab.shape == small_rgb.shape[:2]
+    assert set(np.unique(lab)) == set(range(json.loads(r.stdout)["regions"]))
+    assert cv2.imread(str(prev)).shape[:2] == small_rgb.shape[:2]
+    h, w = small_rgb.shape[:2]
+    strokes = np.zeros((h, w, 3), np.uint8)
+    strokes[5:8, 3:20] = (255, 0, 0)
+    strokes[30:33, 40:60] = (0, 255, 0)
+    sp = tmp_path / "strokes.png"
+    cv2.imwrite(str(sp), strokes)
+    r = run("segment", small_png, "-o", out, "--strokes", sp)
+    assert r.exit_code == 0, r.output
+    lab = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert len(np.unique(lab[5:8, 3:20])) == 1 and len(np.unique(lab[30:33, 40:60])) == 1
+    assert lab[6, 10] != lab[31, 50]
+
+
+def test_segment_bad_inputs(tmp_path, small_png, small_rgb):
+    out = tmp_path / "labels.png"
+    empty = tmp_path / "empty.png"
+    cv2.imwrite(str(empty), np.zeros(small_rgb.shape, np.uint8))
+    assert_one_line_error(run("segment", small_png, "-o", out, "--strokes", empty))
+    notimg = tmp_path / "x.png"
+    notimg.write_text("hello")
+    assert_one_line_error(run("segment", notimg, "-o", out))
+    assert_one_line_error(run("segment", small_png, "-o", out, "--strokes", notimg))
+    assert not out.exists()
