@@ -52,6 +52,7 @@ pairs); beyond :data:`MAX_NNZ` stored numbers the pixels are subsampled so.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, replace
 
@@ -167,6 +168,33 @@ def _phi_into(d2: np.ndarray, out: np.ndarray) -> None:
     np.multiply(d2, 0.5, out=out)
 
 
+def _cardinal_chunk(Pk: np.ndarray, mk: np.ndarray, lamk: np.ndarray, K: int) -> np.ndarray:
+    """``M^{-1} [I; 0]`` for a batch of non-degenerate kernels (local points, active mask, lambda)."""
+    nk = Pk.shape[0]
+    px, py = Pk[..., 0], Pk[..., 1]
+    d2 = (px[:, :, None] - px[:, None, :]) ** 2
+    d2 += (py[:, :, None] - py[:, None, :]) ** 2
+    M = np.empty((nk, K + 3, K + 3))
+    _phi_into(d2, M[:, :K, :K])
+    M[:, :K, :K] *= mk[:, :, None]
+    M[:, :K, :K] *= mk[:, None, :]
+    ii = np.arange(K)
+    M[:, ii, ii] = np.where(mk, lamk[:, None], 1.0)
+    M[:, :K, K] = mk
+    M[:, :K, K + 1] = px * mk
+    M[:, :K, K + 2] = py * mk
+    M[:, K:, :K] = M[:, :K, K:].transpose(0, 2, 1)
+    M[:, K:, K:] = 0.0
+    E = np.zeros((nk, K + 3, K))
+    E[:, ii, ii] = mk
+    try:
+        Zk = np.linalg.solve(M, E)
+    except np.linalg.LinAlgError:  # a singular kernel (should not happen): least squares for each
+        Zk = np.stack([np.linalg.lstsq(m, e, rcond=None)[0] for m, e in zip(M, E)])
+    Zk[~np.isfinite(Zk)] = 0.0
+    return Zk
+
+
 def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
     """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K).
 
@@ -189,31 +217,13 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
     lam = kernel_lambda(ks)
     ok = ~ks.degenerate
     if ok.any():
-        Pk = P[ok]
-        mk = mask[ok]
-        nk = Pk.shape[0]
-        px, py = Pk[..., 0], Pk[..., 1]
-        d2 = (px[:, :, None] - px[:, None, :]) ** 2
-        d2 += (py[:, :, None] - py[:, None, :]) ** 2
-        M = np.empty((nk, K + 3, K + 3))
-        _phi_into(d2, M[:, :K, :K])
-        M[:, :K, :K] *= mk[:, :, None]
-        M[:, :K, :K] *= mk[:, None, :]
-        ii = np.arange(K)
-        M[:, ii, ii] = np.where(mk, lam[ok][:, None], 1.0)
-        M[:, :K, K] = mk
-        M[:, :K, K + 1] = px * mk
-        M[:, :K, K + 2] = py * mk
-        M[:, K:, :K] = M[:, :K, K:].transpose(0, 2, 1)
-        M[:, K:, K:] = 0.0
-        E = np.zeros((nk, K + 3, K))
-        E[:, ii, ii] = mk
-        try:
-            Zk = np.linalg.solve(M, E)
-        except np.linalg.LinAlgError:
-            Zk = np.stack([np.linalg.lstsq(m, e, rcond=None)[0] for m, e in zip(M, E)])
-        Zk[~np.isfinite(Zk)] = 0.0
-        Z[ok] = Zk
+        sel = np.nonzero(ok)[0]
+        chunks = [sel[i:i + 512] for i in range(0, sel.size, 512)]
+
+        def work(c):
+            Z[c] = _cardinal_chunk(P[c], mask[c], lam[c], K)
+
+        _pool_map(work, chunks)
     for k in np.nonzero(~ok)[0]:
         # affine fallback of tpsv.gpu.tps._finish: linear along anchors 0 -> 1, constant across
         m = int(ks.count[k])
@@ -242,8 +252,6 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
 
 def _threads() -> int:
     """Host threads for the fit's batched numpy work (the cores this process may use, at most 8)."""
-    import os
-
     try:
         n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -251,107 +259,106 @@ def _threads() -> int:
     return max(1, min(8, n))
 
 
-def _chunks(bounds: np.ndarray, parts: int) -> list[tuple[int, int]]:
-    """Split kernels ``0..n_k`` into ``parts`` ranges of about equal entry counts."""
-    nk = bounds.size - 1
-    if nk <= 0:
-        return []
-    cuts = np.searchsorted(bounds, np.linspace(0, bounds[-1], parts + 1)[1:-1])
-    edges = np.unique(np.concatenate([[0], np.clip(cuts, 0, nk), [nk]]))
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+_POOL = None
 
 
-def _parallel(fn, ranges):
-    if len(ranges) <= 1:
-        return [fn(*r) for r in ranges]
-    from concurrent.futures import ThreadPoolExecutor
+def _forget_pool() -> None:
+    global _POOL
+    _POOL = None  # a forked child has none of the parent's threads
 
-    with ThreadPoolExecutor(max_workers=len(ranges)) as pool:
-        return list(pool.map(lambda r: fn(*r), ranges))
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _pool_map(fn, items):
+    """``map(fn, items)`` on a few host threads (numpy releases the GIL in the heavy calls).
+
+    One pool serves every call (its threads idle between calls); ``fn`` must not
+    call ``_pool_map`` itself.
+    """
+    global _POOL
+    items = list(items)
+    if len(items) > 1 and _threads() > 1:
+        if _POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOL = ThreadPoolExecutor(max_workers=_threads(), thread_name_prefix="tpsv-fit")
+        return list(_POOL.map(fn, items))
+    return [fn(x) for x in items]
+
+
+@dataclass
+class _Block:
+    """Kernels of similar pixel counts, padded to one dense batch."""
+
+    kernels: np.ndarray  # (b,) kernel ids
+    rows: np.ndarray  # (b, me) fitted pixel of each entry (padding: 0)
+    data: np.ndarray  # (b, me, K) float32 coefficients (padding: 0)
 
 
 @dataclass
 class Design:
-    """``A`` (pixels x features) as dense blocks, one per kernel.
+    """The render operator ``A`` (fitted pixels x features), as dense blocks per kernel.
 
-    Entry ``e`` (a pixel covered by a kernel) holds ``K`` coefficients
-    ``data[e]`` for the kernel's slots ``index[kernel]``; entries are sorted
-    by kernel (``bounds``), ``pix[e]`` is the fitted pixel of the entry.
+    Each kernel holds, for every fitted pixel it covers, ``K`` coefficients
+    (blend weight times the cardinal functions at the pixel) for its slots
+    ``index[kernel]``; kernels of similar pixel counts are padded into one batch
+    (:class:`_Block`) so that products are a few batched matrix products.
     """
 
-    data: np.ndarray  # (entries, K) float32
-    pix: np.ndarray  # (entries,) int64
-    bounds: np.ndarray  # (n_k + 1,)
+    blocks: list
     index: np.ndarray  # (n_k, K) feature per slot (inactive: 0, with zero data)
     n_pix: int
     n_features: int
-
-    def _ranges(self):
-        return _chunks(self.bounds, _threads())
 
     def forward(self, H: np.ndarray) -> np.ndarray:
         """``A H``: (n_pix, c) for H (F, c)."""
         H32 = np.asarray(H, np.float32)
         G = H32[self.index]  # (n_k, K, c)
-        Y = np.empty((self.data.shape[0], H32.shape[1]), np.float32)
-        b = self.bounds
+        c = H32.shape[1]
 
-        def work(k0, k1):
-            for k in range(k0, k1):
-                if b[k + 1] > b[k]:
-                    np.matmul(self.data[b[k]:b[k + 1]], G[k], out=Y[b[k]:b[k + 1]])
+        def one(blk):
+            return np.matmul(blk.data, G[blk.kernels])  # (b, me, c)
 
-        _parallel(work, self._ranges())
-        out = np.empty((self.n_pix, H32.shape[1]))
-        for c in range(H32.shape[1]):
-            out[:, c] = np.bincount(self.pix, Y[:, c], self.n_pix)
+        outs = _pool_map(one, self.blocks)
+        out = np.zeros((self.n_pix, c))
+        rows = np.concatenate([blk.rows.ravel() for blk in self.blocks]) if self.blocks else np.zeros(0, np.int64)
+        vals = np.concatenate([o.reshape(-1, c) for o in outs]) if outs else np.zeros((0, c), np.float32)
+        for j in range(c):
+            out[:, j] = np.bincount(rows, vals[:, j], self.n_pix)
+        return out
+
+    def _adjoint(self, R: np.ndarray, square: bool) -> np.ndarray:
+        R32 = np.asarray(R, np.float32)
+        c = R32.shape[1]
+        G = np.zeros((self.index.shape[0], self.index.shape[1], c), np.float32)
+
+        def one(blk):
+            d = blk.data * blk.data if square else blk.data
+            G[blk.kernels] = np.matmul(d.transpose(0, 2, 1), R32[blk.rows])
+
+        _pool_map(one, self.blocks)
+        flat = self.index.ravel()
+        out = np.empty((self.n_features, c))
+        for j in range(c):
+            out[:, j] = np.bincount(flat, G[..., j].ravel().astype(np.float64), self.n_features)
         return out
 
     def adjoint(self, R: np.ndarray) -> np.ndarray:
         """``A^T R`` for R (n_pix, c): (F, c)."""
-        Re = np.asarray(R, np.float32)[self.pix]
-        G = np.zeros((self.index.shape[0], self.index.shape[1], Re.shape[1]), np.float32)
-        b = self.bounds
-
-        def work(k0, k1):
-            for k in range(k0, k1):
-                if b[k + 1] > b[k]:
-                    np.matmul(self.data[b[k]:b[k + 1]].T, Re[b[k]:b[k + 1]], out=G[k])
-
-        _parallel(work, self._ranges())
-        flat = self.index.ravel()
-        out = np.empty((self.n_features, Re.shape[1]))
-        for c in range(Re.shape[1]):
-            out[:, c] = np.bincount(flat, G[..., c].ravel().astype(np.float64), self.n_features)
-        return out
+        return self._adjoint(R, False)
 
     def column_sq(self, Wd: np.ndarray) -> np.ndarray:
-        """``sum_e data[e, j]^2 Wd[pix_e]`` per feature (F, c): the Jacobi diagonal, overlaps ignored."""
-        sq = self.data * self.data
-        return self.adjoint_sq(sq, Wd)
-
-    def adjoint_sq(self, sq, Wd):
-        Re = np.asarray(Wd, np.float32)[self.pix]
-        G = np.zeros((self.index.shape[0], self.index.shape[1], Re.shape[1]), np.float32)
-        b = self.bounds
-
-        def work(k0, k1):
-            for k in range(k0, k1):
-                if b[k + 1] > b[k]:
-                    np.matmul(sq[b[k]:b[k + 1]].T, Re[b[k]:b[k + 1]], out=G[k])
-
-        _parallel(work, self._ranges())
-        flat = self.index.ravel()
-        out = np.empty((self.n_features, Re.shape[1]))
-        for c in range(Re.shape[1]):
-            out[:, c] = np.bincount(flat, G[..., c].ravel().astype(np.float64), self.n_features)
-        return out
+        """``sum_x A[x, j]^2 Wd[x]`` per feature (F, c): the Jacobi diagonal (overlapping slots
+        of one feature in two kernels counted apart)."""
+        return self._adjoint(Wd, True)
 
 
 def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple[Design, int]:
     """The render operator at the given points (region (n,), st (n, 2)).
 
-    Returns the design and its number of stored coefficients.
+    Returns the design and its number of stored coefficients (padding excluded).
     """
     n = region.shape[0]
     F = ks.st.shape[0]
@@ -372,7 +379,6 @@ def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple
     v = ((q[:, 1] - fr[:, 1]) * fr[:, 3]).astype(np.float32)
     P32 = P.astype(np.float32)
     Zc = Z.astype(np.float32)  # (n_k, K + 3, K)
-    data = np.empty((ne, K), np.float32)
     counts = np.diff(bounds)
     # kernels in groups of similar entry counts, each group one padded batch
     order_k = np.argsort(counts, kind="stable")
@@ -405,22 +411,11 @@ def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple
         B[:, :, K + 2] = vb
         out = np.matmul(B, Zc[ks_])  # (b, me, K)
         out *= np.where(valid, e_w[pos], 0.0)[:, :, None]
-        data[pos[valid]] = out[valid]
+        return _Block(kernels=ks_, rows=e_pix[pos], data=out)
 
-    if len(groups) > 1 and _threads() > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=_threads()) as pool:
-            list(pool.map(batch, groups))
-    else:
-        for g in groups:
-            batch(g)
+    blocks = _pool_map(batch, groups)
     index = np.where(ks.index >= 0, ks.index, 0).astype(np.int64)
-    des = Design(data=data, pix=e_pix.astype(np.int64), bounds=bounds, index=index, n_pix=n, n_features=F)
-    return des, ne * K
-
-
-# --------------------------------------------------------------------------- fit
+    return Design(blocks=blocks, index=index, n_pix=n, n_features=F), ne * K
 
 
 def fit_colors(
