@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tpsv.model import Patch
+
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "samples"
 
@@ -18,6 +20,18 @@ def small_sample(name: str = "chelsea", width: int = 64) -> np.ndarray:
     h, w = img.shape[:2]
     img = cv2.resize(img, (width, round(h * width / w)), interpolation=cv2.INTER_AREA)
     return img.astype(np.float32) / 255.0
+
+
+def rect_patch(x0, y0, w, h, M=3, N=3) -> Patch:
+    """An axis-aligned rectangular (affine) Hermite patch."""
+    ii, jj = np.meshgrid(np.arange(M, dtype=float), np.arange(N, dtype=float), indexing="ij")
+    a = np.array([w / (M - 1), 0.0])
+    b = np.array([0.0, h / (N - 1)])
+    ctrl = np.zeros((M, N, 4, 2))
+    ctrl[..., 0, :] = np.array([x0, y0]) + ii[..., None] * a + jj[..., None] * b
+    ctrl[..., 1, :] = a
+    ctrl[..., 2, :] = b
+    return Patch(ctrl)
 
 
 @pytest.fixture(scope="session")

@@ -9,19 +9,9 @@ from scipy.interpolate import RBFInterpolator
 from tpsv import tps
 from tpsv.errors import TpsvError
 from tpsv.gpu import tps as gtps
-from tpsv.model import Features, Model, Params, Patch, Region
+from tpsv.model import Features, Model, Params, Region
 
-
-def rect_patch(x0, y0, w, h, M=3, N=3) -> Patch:
-    """An axis-aligned rectangular (affine) Hermite patch."""
-    ii, jj = np.meshgrid(np.arange(M, dtype=float), np.arange(N, dtype=float), indexing="ij")
-    a = np.array([w / (M - 1), 0.0])
-    b = np.array([0.0, h / (N - 1)])
-    ctrl = np.zeros((M, N, 4, 2))
-    ctrl[..., 0, :] = np.array([x0, y0]) + ii[..., None] * a + jj[..., None] * b
-    ctrl[..., 1, :] = a
-    ctrl[..., 2, :] = b
-    return Patch(ctrl)
+from conftest import rect_patch
 
 
 def rect_model(rects, feats, width, height, **params) -> Model:
