@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from tpsv.image import read_image, write_image
-from tpsv.render import render
-from tpsv.vectorize import vectorize
+from tpsv.render.raster import render
+from tpsv.encode.vectorize import vectorize
 
 ROOT = Path(__file__).resolve().parent.parent
 IMG = ROOT / "docs" / "img"

@@ -38,7 +38,7 @@ def scene() -> tuple[np.ndarray, np.ndarray]:
 @functools.lru_cache(maxsize=None)
 def scene_model():
     """The vectorised scene (quantised, as decoded from its file). Do not mutate it."""
-    from tpsv.vectorize import vectorize
+    from tpsv.encode.vectorize import vectorize
 
     rgb, labels = scene()
     m = vectorize(rgb, labels, search=False).model
@@ -52,7 +52,7 @@ def photo_model():
     from pathlib import Path
 
     from tpsv.image import read_image, read_labels
-    from tpsv.vectorize import vectorize
+    from tpsv.encode.vectorize import vectorize
 
     root = Path(__file__).resolve().parent.parent / "samples"
     rgb = read_image(root / "chelsea.png")[90:138, 150:214]

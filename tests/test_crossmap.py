@@ -1,4 +1,4 @@
-"""Cross mapping (tpsv.crossmap, paper VII-C): correspondence, replace, blend, colour statistics."""
+"""Cross mapping (tpsv.edit.crossmap, paper VII-C): correspondence, replace, blend, colour statistics."""
 
 from __future__ import annotations
 
@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from editfixtures import BACKGROUND, DISC, PANEL, photo_model, same_model, scene_model
-from tpsv import codec, crossmap
+from tpsv import codec
+from tpsv.edit import crossmap
 from tpsv.color import lab_to_srgb
-from tpsv.editing import copy_model
+from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
-from tpsv.render import region_index, render
+from tpsv.render.raster import region_index, render
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Shape manipulation (tpsv.deform, paper VII-D): features ride along, outlines follow, folds refused."""
+"""Shape manipulation (tpsv.edit.deform, paper VII-D): features ride along, outlines follow, folds refused."""
 
 from __future__ import annotations
 
@@ -9,11 +9,13 @@ import pytest
 from skimage.measure import points_in_poly
 
 from editfixtures import BACKGROUND, DISC, PANEL, same_model, scene_model
-from tpsv import codec, deform, patch
-from tpsv.editing import copy_model
+from tpsv import codec
+from tpsv.edit import deform
+from tpsv.geometry import patch
+from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import Patch
-from tpsv.render import FRONT_KEY, draw_order, region_index, render
+from tpsv.render.raster import FRONT_KEY, draw_order, region_index, render
 
 SHIFT = (8.0, -3.0)
 
@@ -247,7 +249,7 @@ def test_islands_are_carried_along(model):
     alone = deform.affine(model, BACKGROUND, [1, 0, 3, 0, 1, 2], attach=False)
     assert np.array_equal(alone.regions[DISC].patch.ctrl, model.regions[DISC].patch.ctrl)
     # a control-point move: the island follows the background's map; its features stay on the content
-    from tpsv.editing import feature_xy
+    from tpsv.edit.common import feature_xy
 
     moved = deform.move_points(model, [(BACKGROUND, 1, 0, 4.0, 3.0), (BACKGROUND, 1, 1, 4.0, 3.0)])
     phi = deform.patch_mapper(model.regions[BACKGROUND].patch, moved.regions[BACKGROUND].patch)

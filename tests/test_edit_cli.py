@@ -9,7 +9,8 @@ import pytest
 from click.testing import CliRunner
 
 from editfixtures import BACKGROUND, DISC, PANEL, same_model, scene_model
-from tpsv import codec, crossmap, deform, recolor
+from tpsv import codec
+from tpsv.edit import crossmap, deform, recolor
 from tpsv.cli import main
 
 

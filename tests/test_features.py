@@ -1,4 +1,4 @@
-"""Curvilinear pairs and gradation features (tpsv.features)."""
+"""Curvilinear pairs and gradation features (tpsv.encode.features)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tpsv.color import srgb_to_lab
-from tpsv.features import (
-    FeatureExtractor,
-    FeatureSet,
-    curvilinear_features,
-    extract_features,
-    gradation_features,
-)
+from tpsv.encode.features import FeatureExtractor, FeatureSet, curvilinear_features, extract_features, gradation_features
 from tpsv.model import CURVILINEAR, GRADATION
 
 A = np.array([0.9, 0.2, 0.1], np.float32)
@@ -333,14 +327,14 @@ def test_property_region_colours_and_coverage(h, w, blocks, seed, tc, ts):
 
 
 def lattice_for(rgb, labels):
-    from tpsv.vectorize import build_geometry
+    from tpsv.encode.vectorize import build_geometry
 
     g = build_geometry(labels)
     return g, g.lattice(srgb_to_lab(rgb))
 
 
 def test_lattice_monotone_covering_and_in_range():
-    from tpsv.features import LatticeGradation
+    from tpsv.encode.features import LatticeGradation
 
     rgb = textured()
     labels = np.zeros(rgb.shape[:2], np.int32)

@@ -1,4 +1,4 @@
-"""Least-squares colour fit (tpsv.fit)."""
+"""Least-squares colour fit (tpsv.encode.fit)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tpsv import codec, fit, metrics, tps
+from tpsv import codec, metrics
+from tpsv.encode import fit
+from tpsv.tps import group as tps
 from tpsv.color import lab_to_srgb, srgb_to_lab
-from tpsv.features import FeatureExtractor
-from tpsv.render import render
-from tpsv.vectorize import build_geometry, make_model, scheme_params
+from tpsv.encode.features import FeatureExtractor
+from tpsv.render.raster import render
+from tpsv.encode.vectorize import build_geometry, make_model, scheme_params
 
 
 def scene(h=40, w=56, seed=0):

@@ -1,4 +1,4 @@
-"""Incremental rebuild (tpsv.live): only kernels whose features changed are solved, results bit-identical."""
+"""Incremental rebuild (tpsv.render.live): only kernels whose features changed are solved, results bit-identical."""
 
 from __future__ import annotations
 
@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from editfixtures import DISC, PANEL, photo_model, scene_model
-from tpsv import crossmap, deform, recolor, tps
+from tpsv.edit import crossmap, deform, recolor
+from tpsv.tps import group as tps
 from tpsv.gpu import tps as gtps
-from tpsv.live import LiveImage, kernel_keys
-from tpsv.render import render
+from tpsv.render.live import LiveImage, kernel_keys
+from tpsv.render.raster import render
 
 
 @pytest.fixture(scope="module")

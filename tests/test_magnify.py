@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 
 from tpsv import metrics
-from tpsv.magnify import back_project, dense_model, magnify_raster
-from tpsv.render import render
+from tpsv.render.magnify import back_project, dense_model, magnify_raster
+from tpsv.render.raster import render
 
 
 def test_dense_model_has_a_feature_per_pixel(small_rgb, small_labels):

@@ -5,7 +5,7 @@ import pytest
 from scipy import ndimage as ndi
 
 from tpsv.errors import TpsvError
-from tpsv.outline import _fill_polys, rasterize_regions, signed_area, trace_outline
+from tpsv.geometry.outline import _fill_polys, rasterize_regions, signed_area, trace_outline
 
 
 def _grid(n, m=None):

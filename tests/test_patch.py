@@ -6,21 +6,8 @@ from scipy import ndimage as ndi
 
 from tpsv.errors import TpsvError
 from tpsv.model import Patch
-from tpsv.outline import trace_outline
-from tpsv.patch import (
-    InverseLUT,
-    adini_twist,
-    affine_frame,
-    build_patch,
-    choose_grid,
-    denormalize,
-    fold_free,
-    forward,
-    inverse,
-    jacobian,
-    min_jacobian,
-    normalize,
-)
+from tpsv.geometry.outline import trace_outline
+from tpsv.geometry.patch import InverseLUT, adini_twist, affine_frame, build_patch, choose_grid, denormalize, fold_free, forward, inverse, jacobian, min_jacobian, normalize
 
 
 def _grid(n, m=None):
@@ -262,7 +249,7 @@ def test_choose_grid_bounds():
 
 def test_preview_draws_grids_outlines_features():
     from tpsv.model import CURVILINEAR, GRADATION, Features, Model, Region
-    from tpsv.preview import draw_preview
+    from tpsv.render.preview import draw_preview
 
     m = SHAPES["cshape"]
     out = trace_outline(m)
@@ -289,7 +276,7 @@ def test_preview_draws_grids_outlines_features():
 def test_new_patch_survives_codec_quantisation_exactly():
     """A fresh patch lies on the codec's 1/16 px grid, so a decoded one is still affine."""
     from tpsv.codec.quant import CTRL_SCALE
-    from tpsv.patch import GRID_QUANTUM, affine_frame, build_patch
+    from tpsv.geometry.patch import GRID_QUANTUM, affine_frame, build_patch
 
     assert CTRL_SCALE == GRID_QUANTUM
     yy, xx = np.mgrid[:60, :80]

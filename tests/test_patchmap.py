@@ -1,11 +1,11 @@
-"""The Warp inverse map agrees with tpsv.patch.inverse."""
+"""The Warp inverse map agrees with tpsv.geometry.patch.inverse."""
 
 import numpy as np
 import pytest
 
 from tpsv.model import Patch
-from tpsv.outline import rasterize_regions, trace_outline
-from tpsv.patch import adini_twist, build_patch, inverse, normalize
+from tpsv.geometry.outline import rasterize_regions, trace_outline
+from tpsv.geometry.patch import adini_twist, build_patch, inverse, normalize
 
 
 @pytest.fixture(scope="module")

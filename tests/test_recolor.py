@@ -1,4 +1,4 @@
-"""Colour editing (tpsv.recolor, paper VII-B): selection, operations, far side kept, round trips."""
+"""Colour editing (tpsv.edit.recolor, paper VII-B): selection, operations, far side kept, round trips."""
 
 from __future__ import annotations
 
@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from editfixtures import BACKGROUND, DISC, DISC_C, PANEL, photo_model, same_model, scene_model
-from tpsv import codec, recolor
-from tpsv.editing import copy_model
+from tpsv import codec
+from tpsv.edit import recolor
+from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import CURVILINEAR, GRADATION
-from tpsv.render import region_index, render
+from tpsv.render.raster import region_index, render
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +41,7 @@ def test_select_by_colour_region_and_radius(model):
     panel = recolor.select(model, region=PANEL)
     assert np.array_equal(panel, f.region == PANEL)
     near = recolor.select(model, at=DISC_C, radius=5, tolerance=200)
-    from tpsv.editing import feature_xy
+    from tpsv.edit.common import feature_xy
 
     xy = feature_xy(model)
     assert np.array_equal(near, np.hypot(*(xy - DISC_C).T) <= 5)
@@ -48,7 +49,7 @@ def test_select_by_colour_region_and_radius(model):
 
 def test_select_at_seed_uses_nearest_feature_of_region_under_point(model):
     f = model.features
-    from tpsv.editing import feature_xy, region_at
+    from tpsv.edit.common import feature_xy, region_at
 
     p = (50.0, 30.0)
     assert region_at(model, p) == PANEL

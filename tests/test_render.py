@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tpsv import render, tps
+from tpsv.render import raster as render
+from tpsv.tps import group as tps
 from tpsv.color import lab_to_srgb, srgb_to_lab
 from tpsv.errors import TpsvError
 from tpsv.model import Features, Model, Params, Region

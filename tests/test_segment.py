@@ -5,7 +5,7 @@ import pytest
 from scipy import ndimage as ndi
 
 from tpsv.errors import TpsvError
-from tpsv.segment import overlay_regions, segment_auto, segment_strokes, split_connected, stroke_labels
+from tpsv.geometry.segment import overlay_regions, segment_auto, segment_strokes, split_connected, stroke_labels
 
 
 def _connected(lab):

@@ -8,16 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tpsv.features import FeatureExtractor
-from tpsv.selection import (
-    CANNY_RANGE,
-    SUPER_RANGE,
-    efficiency,
-    gradient_stats,
-    initial_thresholds,
-    monte_carlo_search,
-    thresholds_from_stats,
-)
+from tpsv.encode.features import FeatureExtractor
+from tpsv.encode.search import CANNY_RANGE, SUPER_RANGE, efficiency, gradient_stats, initial_thresholds, monte_carlo_search, thresholds_from_stats
 
 
 def small_sample(name: str, long_side: int = 128) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Abstraction and stylisation (tpsv.stylize, paper VII-E)."""
+"""Abstraction and stylisation (tpsv.edit.stylize, paper VII-E)."""
 
 from __future__ import annotations
 
@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from editfixtures import photo_model, same_model, scene_model
-from tpsv import codec, stylize
-from tpsv.editing import copy_model, feature_xy
+from tpsv import codec
+from tpsv.edit import stylize
+from tpsv.edit.common import copy_model, feature_xy
 from tpsv.errors import TpsvError
 from tpsv.model import CURVILINEAR, GRADATION, Features, Model, Params, Region
-from tpsv.patch import build_patch
+from tpsv.geometry.patch import build_patch
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +68,7 @@ def line_model():
     xs = np.arange(3.0, 27.0, 1.0)
     above = np.column_stack([xs, np.full_like(xs, 9.5)])
     below = np.column_stack([xs, np.full_like(xs, 10.5)])
-    from tpsv.patch import inverse, normalize
+    from tpsv.geometry.patch import inverse, normalize
 
     st = normalize(p, inverse(p, np.concatenate([above, below])))
     n = xs.size

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import RBFInterpolator
 
-from tpsv import tps
+from tpsv.tps import group as tps
 from tpsv.errors import TpsvError
 from tpsv.gpu import tps as gtps
 from tpsv.model import Features, Model, Params, Region

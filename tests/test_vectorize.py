@@ -1,4 +1,4 @@
-"""The vectorize pipeline: schemes, the colour fit, the search wiring (tpsv.vectorize)."""
+"""The vectorize pipeline: schemes, the colour fit, the search wiring (tpsv.encode.vectorize)."""
 
 from __future__ import annotations
 
@@ -9,20 +9,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from tpsv import codec, metrics, selection
+from tpsv import codec, metrics
+from tpsv.encode import search as selection
 from tpsv.cli import main
 from tpsv.errors import TpsvError
-from tpsv.features import FeatureExtractor
-from tpsv.render import render
-from tpsv.vectorize import (
-    build_geometry,
-    make_model,
-    scan_order,
-    scheme_of,
-    scheme_params,
-    to_patch_space,
-    vectorize,
-)
+from tpsv.encode.features import FeatureExtractor
+from tpsv.render.raster import render
+from tpsv.encode.vectorize import build_geometry, make_model, scan_order, scheme_of, scheme_params, to_patch_space, vectorize
 
 
 @pytest.fixture(scope="module")

@@ -164,7 +164,7 @@ class Params:
     extra : dict
         Free key-value pairs (bool, int, float, str), stored as they are.
         ``extra["scheme"] = "paper"`` marks a model made with the paper's
-        plain scheme (``tpsv.vectorize``).
+        plain scheme (``tpsv.encode.vectorize``).
     """
 
     t_canny: float = 40.0

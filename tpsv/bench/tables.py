@@ -14,11 +14,13 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from . import baseline, metrics, tps
-from .errors import TpsvError
-from .features import FeatureExtractor
-from .model import Model
-from .vectorize import build_geometry, evaluate, make_model, vectorize
+from . import baseline
+from .. import metrics
+from ..tps import group as tps
+from ..errors import TpsvError
+from ..encode.features import FeatureExtractor
+from ..model import Model
+from ..encode.vectorize import build_geometry, evaluate, make_model, vectorize
 
 #: JPEG qualities swept for the rate-distortion curve and the best-w search.
 JPEG_QUALITIES = tuple(range(5, 101, 5))
@@ -131,7 +133,7 @@ def _local_unpacked_seconds(model: Model) -> dict:
 
 def timing_table(model: Model, device: str) -> dict:
     """Table I: construction + solve + rasterisation, three ways."""
-    from .render import render_timed
+    from ..render.raster import render_timed
 
     _, t = render_timed(model, device=device, repeat=3)
     ks = tps.group_kernels(model)
@@ -151,7 +153,7 @@ def timing_table(model: Model, device: str) -> dict:
 def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080), repeat: int = 10) -> dict:
     """A full-HD render on ``device``: stage timings (best of ``repeat``) and the
     largest difference from the CPU render of the same size."""
-    from .render import render, render_timed
+    from ..render.raster import render, render_timed
 
     img, t = render_timed(model, width=size[0], height=size[1], device=device, repeat=repeat)
     ref = render(model, width=size[0], height=size[1], device="cpu")
@@ -165,11 +167,11 @@ def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080)
 
 
 def edit_table(model: Model, device: str) -> dict:
-    """Rebuild + render seconds of typical edits through :class:`tpsv.live.LiveImage`
+    """Rebuild + render seconds of typical edits through :class:`tpsv.render.live.LiveImage`
     (only kernels whose features changed are solved again), best of 3."""
-    from .deform import affine
-    from .live import LiveImage
-    from .recolor import recolor
+    from ..edit.deform import affine
+    from ..render.live import LiveImage
+    from ..edit.recolor import recolor
 
     if not model.regions or not len(model.features):
         return {}
@@ -196,13 +198,13 @@ def edit_table(model: Model, device: str) -> dict:
 
 
 def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
-    """Area-downscale by ``factor``, magnify back (``tpsv.magnify``: dense model,
+    """Area-downscale by ``factor``, magnify back (``tpsv.render.magnify``: dense model,
     back-projected colours, one region); compare with the original."""
     h, w = rgb.shape[:2]
     h, w = h - h % factor, w - w % factor
     ref = rgb[:h, :w]
     small = baseline.downscale_area(ref, factor)
-    from .magnify import magnify_raster
+    from ..render.magnify import magnify_raster
 
     _, big = magnify_raster(small, (w, h), device=device)
     rows = {"tpsv": big}
@@ -237,7 +239,7 @@ def bench_image(
     step: Callable[[str], None] | None = None,
 ) -> dict:
     """All benchmark figures for one image (see the module docstring)."""
-    from . import selection
+    from ..encode import search as selection
 
     tick = step or (lambda label: None)
     h, w = rgb.shape[:2]
@@ -271,7 +273,7 @@ def bench_image(
 
     model = res.model
     t0 = time.perf_counter()
-    from .render import render
+    from ..render.raster import render
 
     render(model, device=device)
     render_seconds = time.perf_counter() - t0
@@ -323,7 +325,7 @@ def bench_model(name: str, model: Model, *, device: str = "cpu") -> dict:
 
 
 def _auto_labels(rgb: np.ndarray, seed: int) -> np.ndarray:
-    from . import segment
+    from ..geometry import segment
 
     return segment.segment_auto(rgb, seed=seed)
 
@@ -450,6 +452,6 @@ def rd_plot(result: dict, path: Path, size: tuple[int, int] = (640, 420)) -> Non
     cv2.putText(img, f"{result['name']}: tpsv (red, green = searched optimum), JPEG (blue)", (L, 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", img)
-    from .fileio import write_bytes_atomic
+    from ..fileio import write_bytes_atomic
 
     write_bytes_atomic(path, buf.tobytes())

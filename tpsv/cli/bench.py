@@ -52,7 +52,7 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
     guess, the searched optimum, a brute-force grid and JPEG), the 4x
     magnification comparison against bicubic and Lanczos, and CPU seconds.
     """
-    from .. import bench as b
+    from ..bench import tables as b
 
     device = device_for(ctx, device)
     inputs = _inputs(images)

@@ -140,7 +140,7 @@ def _encode(model) -> bytes:
 def finish_edit(ctx, model, output, render_path, scale, device, as_json, info: dict, t0: float) -> None:
     """Encode (and render) the edited model, then write the outputs and the summary."""
     from ..image import encode_png
-    from ..render import render
+    from ..render.raster import render
 
     data = _encode(model)
     png = None
@@ -204,7 +204,7 @@ def _positive_scale(scale):
 def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_ab, lightness, matrix,
             matrix_space, harmonize, render_path, scale, device, as_json):
     """Edit the colours of selected features (paper VII-B)."""
-    from .. import recolor as rc
+    from ..edit import recolor as rc
 
     t0 = time.perf_counter()
     _check_targets(as_json, output, render_path)
@@ -235,7 +235,7 @@ def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_
     if harmonize:
         import numpy as np
 
-        from ..editing import clip_lab
+        from ..edit.common import clip_lab
 
         pre = rc.recolor_features(model, mask, hue=hue, shift_ab=shift, lightness=lightness, matrix=mat,
                                   matrix_space=matrix_space)
@@ -268,7 +268,7 @@ def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_
 def crossmap(ctx, path, output, target_region, source, source_region, rotate, flip, alpha, match_stats,
              render_path, scale, device, as_json):
     """Map a source region's features onto a target region (paper VII-C)."""
-    from .. import crossmap as cm
+    from ..edit import crossmap as cm
 
     t0 = time.perf_counter()
     _check_targets(as_json, output, render_path)
@@ -321,7 +321,7 @@ def deform(ctx, path, output, moves, affines, about, grids, derivatives, keep_or
     """
     import json
 
-    from .. import deform as df
+    from ..edit import deform as df
 
     t0 = time.perf_counter()
     _check_targets(as_json, output, render_path)
@@ -376,8 +376,8 @@ def deform(ctx, path, output, moves, affines, about, grids, derivatives, keep_or
 def stylize(ctx, path, output, level, strokes, stroke_width, scale, abstract_out, device, as_json):
     """Abstraction and strokes (paper VII-E); writes an image."""
     from ..image import encode_png
-    from ..render import render
-    from .. import stylize as st
+    from ..render.raster import render
+    from ..edit import stylize as st
 
     t0 = time.perf_counter()
     check_json_target(as_json, output)

@@ -15,7 +15,7 @@ from ..image import write_image
 
 
 def _render_and_write(ctx, model, output, size, scale, device, as_json, extra=None):
-    from ..render import render
+    from ..render.raster import render
 
     t0 = time.perf_counter()
     if size is not None:
@@ -70,7 +70,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, devic
     PATH is a .tpsv (rendered at the scale), or a raster photo: then every pixel
     becomes a colour feature, the colours are fitted so that the magnified
     render, area-averaged back, reproduces the photo, and the result is
-    rendered (tpsv.magnify).
+    rendered (tpsv.render.magnify).
     """
     check_json_target(as_json, output)
     positive("--factor", factor)
@@ -82,8 +82,8 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, devic
         _render_and_write(ctx, model, output, None, factor, device, as_json)
         return
     from ..image import read_image, read_labels
-    from ..magnify import magnify_raster
-    from ..render import MAX_PIXELS, MAX_SIDE
+    from ..render.magnify import magnify_raster
+    from ..render.raster import MAX_PIXELS, MAX_SIDE
 
     t0 = time.perf_counter()
     rgb = read_image(path)

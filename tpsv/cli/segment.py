@@ -10,7 +10,7 @@ import numpy as np
 
 from . import main, say
 from .options import check_json_target, emit_json, json_option, output_option
-from .. import segment as seg
+from ..geometry import segment as seg
 from ..image import read_image, write_image, write_labels
 
 

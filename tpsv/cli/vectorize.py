@@ -39,7 +39,7 @@ def vectorize_options(f):
 def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, search, device,
                   plain=False):
     """Read inputs and vectorise; shared by ``vectorize`` and ``magnify``."""
-    from ..vectorize import scheme_params, vectorize as vectorize_image
+    from ..encode.vectorize import scheme_params, vectorize as vectorize_image
 
     rgb = read_image(image)
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
@@ -105,7 +105,7 @@ def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, ke
                                 smoothing, search, device, plain=plain)
     write_bytes_atomic(output, result.data)
     if preview:
-        from ..preview import draw_preview
+        from ..render.preview import draw_preview
 
         write_image(preview, draw_preview(rgb, result.model))
     s = summary(rgb, result)

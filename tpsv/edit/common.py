@@ -9,9 +9,9 @@ import copy
 
 import numpy as np
 
-from . import patch as hpatch
-from .errors import TpsvError
-from .model import Features, Model
+from ..geometry import patch as hpatch
+from ..errors import TpsvError
+from ..model import Features, Model
 
 
 def copy_model(model: Model) -> Model:
@@ -44,10 +44,10 @@ def region_at(model: Model, xy) -> int:
     """The region the renderer shows at pixel-space point ``xy`` (at scale 1).
 
     The pixel containing the point gets its region from the vector outlines
-    (``tpsv.render.region_index``, draw order honoured), so this is the region
+    (``tpsv.render.raster.region_index``, draw order honoured), so this is the region
     a user sees under the cursor.
     """
-    from .render import region_index
+    from ..render.raster import region_index
 
     p = check_point(model, xy)
     if not model.regions:
@@ -105,8 +105,8 @@ def clip_lab(lab: np.ndarray) -> np.ndarray:
 
 def solved_kernels(model: Model, device: str = "cpu"):
     """Grouped and solved kernels of ``model`` (for sampling its TPS colours at points)."""
-    from . import tps
-    from .gpu import tps as gtps
+    from ..tps import group as tps
+    from ..gpu import tps as gtps
 
     ks = tps.group_kernels(model)
     return gtps.solve(gtps.upload(ks, device))
@@ -117,7 +117,7 @@ def tps_lab(model: Model, region, st, device: str = "cpu", dk=None) -> np.ndarra
 
     ``region`` (n,) or a scalar; ``st`` (n, 2). Returns (n, 3) float64.
     """
-    from .gpu import tps as gtps
+    from ..gpu import tps as gtps
 
     st = np.asarray(st, np.float64).reshape(-1, 2)
     if st.shape[0] == 0:

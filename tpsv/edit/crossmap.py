@@ -51,9 +51,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .editing import check_region, clip_lab, concat_features, copy_model, sort_by_region, tps_lab
-from .errors import TpsvError
-from .model import Features, Model
+from .common import check_region, clip_lab, concat_features, copy_model, sort_by_region, tps_lab
+from ..errors import TpsvError
+from ..model import Features, Model
 
 
 def map_st(st, rotate: int = 0, flip: bool = False) -> np.ndarray:

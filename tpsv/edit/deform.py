@@ -17,7 +17,7 @@ Edits
   differences ``(P[i+1] - P[i-1]) / 2`` inside the grid, one-sided
   ``P[1] - P[0]`` at its border; on an untouched grid from ``build_patch``
   these are exactly the stored derivatives), and the twists around them are
-  recomputed by Adini's formula (``tpsv.patch.adini_twist``). Control
+  recomputed by Adini's formula (``tpsv.geometry.patch.adini_twist``). Control
   vectors farther away keep their values, so a patch loaded with its own
   derivatives (``--grid``) is only changed near the moved points. With
   ``derivatives='keep'`` the point is translated and its derivatives and
@@ -34,7 +34,7 @@ Edits
   normalised, so they follow).
 
 A deformation that folds the patch (a Jacobian determinant ``<= 0`` anywhere
-on it, sampled 8 x 8 per cell by ``tpsv.patch.fold_free``) is refused with a
+on it, sampled 8 x 8 per cell by ``tpsv.geometry.patch.fold_free``) is refused with a
 :class:`TpsvError`.
 
 Uncovered pixels and overlaps
@@ -59,12 +59,12 @@ island that would fold is refused like the region itself.
 
 Pixels that no outline covers (``attach=False``, or a gap at the image border)
 follow the renderer's rule for every such pixel
-(``tpsv.outline.rasterize_regions``): they take the region of the nearest
+(``tpsv.geometry.outline.rasterize_regions``): they take the region of the nearest
 covered pixel, and that region's TPS at the clamped ``(S, T)``.
 
 Where a moved outline overlaps another region, the region drawn first wins:
 every region a call deforms is put in front (``Params.extra["front"]``, see
-``tpsv.render.draw_order``), the most recently deformed first, unless
+``tpsv.render.raster.draw_order``), the most recently deformed first, unless
 ``keep_order=True``. Region indices never change, so later edits of the same
 file can name the same regions.
 
@@ -90,11 +90,11 @@ import json
 
 import numpy as np
 
-from . import patch as hpatch
-from .editing import check_region, copy_model
-from .errors import TpsvError
-from .model import Model, Patch
-from .render import FRONT_KEY, draw_order
+from ..geometry import patch as hpatch
+from .common import check_region, copy_model
+from ..errors import TpsvError
+from ..model import Model, Patch
+from ..render.raster import FRONT_KEY, draw_order
 
 #: Outline edges are split to at most this length (px) before a non-affine map.
 SUBDIVIDE_PX = 1.0
@@ -170,7 +170,7 @@ def _subdivide(poly: np.ndarray, step: float) -> np.ndarray:
 def _simplify(poly: np.ndarray, tol: float) -> np.ndarray:
     import cv2
 
-    from .outline import signed_area
+    from ..geometry.outline import signed_area
 
     s = cv2.approxPolyDP(poly.reshape(-1, 1, 2).astype(np.float32), tol, True).reshape(-1, 2).astype(np.float64)
     a0 = signed_area(poly)
@@ -227,7 +227,7 @@ def _glue(model: Model, out: Model, mappers: dict, eps: float) -> list[int]:
     """
     from scipy.spatial import cKDTree
 
-    from .outline import signed_area
+    from ..geometry.outline import signed_area
 
     if not mappers:
         return []
@@ -281,7 +281,7 @@ def _glue(model: Model, out: Model, mappers: dict, eps: float) -> list[int]:
 
 
 def _check_outline(r: int, outline) -> None:
-    from .outline import signed_area
+    from ..geometry.outline import signed_area
 
     for k, p in enumerate(outline):
         if not np.all(np.isfinite(p)):

@@ -2,13 +2,13 @@
 
 An edit is a *selection* of colour features and an *operation* on their Lab
 colours; the TPS kernels are then rebuilt from the new colours (only the
-kernels holding a changed feature: ``tpsv.live``). Geometry never changes.
+kernels holding a changed feature: ``tpsv.render.live``). Geometry never changes.
 
 Selection (:func:`select`)
 --------------------------
 * ``at=(x, y)``: a seed point in pixel space (pixel ``(r, c)`` covers
   ``[c, c+1] x [r, r+1]``). Its region is the one the renderer shows there
-  (vector outlines, ``tpsv.editing.region_at``), or ``region`` when given;
+  (vector outlines, ``tpsv.edit.common.region_at``), or ``region`` when given;
   the seed feature is that region's feature nearest to the point (pixel
   distance, features placed by the patch's forward map), and its colour is
   the reference colour.
@@ -73,10 +73,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .color import lab_to_srgb, srgb_to_lab
-from .editing import check_point, check_region, clip_lab, copy_model, feature_xy, region_at
-from .errors import TpsvError
-from .model import GRADATION, Model
+from ..color import lab_to_srgb, srgb_to_lab
+from .common import check_point, check_region, clip_lab, copy_model, feature_xy, region_at
+from ..errors import TpsvError
+from ..model import GRADATION, Model
 
 #: Default colour tolerance (CIE76 Delta E).
 DEFAULT_TOLERANCE = 20.0

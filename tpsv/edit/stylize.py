@@ -44,10 +44,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .color import lab_to_srgb
-from .editing import concat_features, copy_model, feature_xy, sort_by_region
-from .errors import TpsvError
-from .model import CURVILINEAR, GRADATION, Features, Model
+from ..color import lab_to_srgb
+from .common import concat_features, copy_model, feature_xy, sort_by_region
+from ..errors import TpsvError
+from ..model import CURVILINEAR, GRADATION, Features, Model
 
 #: Cell side (px) of the gradation thinning at level 1; doubles with each level.
 BASE_CELL_PX = 3.0
@@ -252,7 +252,7 @@ def strokes(image: np.ndarray, model: Model, scale: float = 1.0, width: float = 
 def stylize(model: Model, level: int = 2, with_strokes: bool = True, stroke_width: float = 1.0, scale: float = 1.0,
             device: str = "cpu", link: float = 2.0, min_length: int = 3) -> np.ndarray:
     """Abstraction at ``level`` rendered at ``scale``, with strokes over it; uint8 RGB ``(H, W, 3)``."""
-    from .render import render
+    from ..render.raster import render
 
     m = abstract(model, level)
     img = render(m, scale=scale, device=device)

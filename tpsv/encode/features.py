@@ -8,7 +8,7 @@ region's patch ``(S, T)``.
 Gradient and scales
 -------------------
 One gradient serves both the Canny detector and the histogram of
-:mod:`tpsv.selection`: the 3x3 Sobel operator (OpenCV's, aperture 3, replicated
+:mod:`tpsv.encode.search`: the 3x3 Sobel operator (OpenCV's, aperture 3, replicated
 border) applied to each channel of ``2.55 * Lab`` (so ``L`` spans 0-255 like
 an 8-bit grey image); at every pixel the channel with the largest L2 gradient
 magnitude is kept (what OpenCV's colour Canny does with BGR). Magnitudes are on
@@ -70,9 +70,9 @@ mean colour, the spacing chosen per region from :data:`LATTICE_PX` by
 region, is at most ``T_super``); cells holding a curvilinear feature are cut
 down to :data:`EDGE_PX`. These features are defined in the patch, not at a
 pixel (``FeatureSet.st``); their ``xy`` is ``M(S, T)``. With colours fitted
-to the image (``tpsv.fit``) a regular spread of features is the better
+to the image (``tpsv.encode.fit``) a regular spread of features is the better
 basis, and lattice positions cost almost nothing to store (measurements in
-the class doc and in ``tpsv.vectorize``).
+the class doc and in ``tpsv.encode.vectorize``).
 
 Every region with at least 3 pixels gets at least 3 non-collinear features (the
 TPS affine part needs them): a region whose features are fewer or collinear
@@ -88,8 +88,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .color import srgb_to_lab
-from .model import CURVILINEAR, GRADATION
+from ..color import srgb_to_lab
+from ..model import CURVILINEAR, GRADATION
 
 #: Lab is scaled by this so that L spans 0-255 (the gradient and variance scale).
 LAB_SCALE = 2.55
@@ -718,7 +718,7 @@ class LatticeGradation:
     (module doc, and docs/DESIGN.md "Compression" for the measurements that
     led here). Each region's parameter square is cut into ``nx x ny`` equal
     cells about ``d`` pixels wide (``nx = max(1, round(sx / d))`` with ``sx``
-    the patch's pixel scale, ``tpsv.tps.patch_pixel_scale``); each cell
+    the patch's pixel scale, ``tpsv.tps.group.patch_pixel_scale``); each cell
     holding a pixel of the region gives one feature at its centre with the
     mean colour of its pixels. The spacing adapts per region to ``T_super``:
     ``d`` is the largest of :data:`LATTICE_PX` at which the cells' RMS colour
@@ -762,7 +762,7 @@ class LatticeGradation:
         spacings: tuple = LATTICE_PX,
         edge_px: float = EDGE_PX,
     ) -> None:
-        from .tps import patch_pixel_scale
+        from ..tps.group import patch_pixel_scale
 
         self.h, self.w = index.shape
         self.patches = list(patches)
@@ -858,7 +858,7 @@ class LatticeGradation:
 
     def _positions(self, st: np.ndarray, reg: np.ndarray) -> np.ndarray:
         """Pixel positions ``M(S, T)`` of patch points (for de-duplication and anchors)."""
-        from . import patch as _patch
+        from ..geometry import patch as _patch
 
         xy = np.zeros((reg.size, 2))
         order = np.argsort(reg, kind="stable")

@@ -2,7 +2,7 @@
 
 A render at scale 1 is, per Lab channel, ``img(x) = sum_k beta_k(x) f_k(x)``
 where ``f_k`` is kernel ``k``'s TPS through its features' colours and
-``beta_k`` the blend weights (``tpsv.tps``). A TPS is linear in the values it
+``beta_k`` the blend weights (``tpsv.tps.group``). A TPS is linear in the values it
 interpolates: ``f_k(x) = b_k(x)^T Z_k h_k`` with ``b_k(x) = [phi(|x - p_i|)
 ..., 1, u, v]`` in the kernel's local frame and ``Z_k = M_k^{-1} [I; 0]`` the
 first ``K`` columns of the inverse of the kernel's symmetric system of Eq. (4)
@@ -58,8 +58,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import tps
-from .color import srgb_to_lab
+from ..tps import group as tps
+from ..color import srgb_to_lab
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -84,8 +84,8 @@ class FitReport:
 
 def pixel_maps(model, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
     """Region index (H, W) int32 and ``(S, T)`` (H, W, 2) float32 of every pixel at scale 1, as rendered."""
-    from . import outline
-    from .gpu.patchmap import inverse_map_numpy
+    from ..geometry import outline
+    from ..gpu.patchmap import inverse_map_numpy
 
     index = outline.rasterize_regions(model.regions, model.width, model.height, src_size=(model.width, model.height))
     st = inverse_map_numpy([r.patch for r in model.regions], index, (model.width, model.height), device=device)
@@ -94,7 +94,7 @@ def pixel_maps(model, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
 
 def lab_to_srgb_jacobian(lab: np.ndarray) -> np.ndarray:
     """``d sRGB / d Lab`` (n, 3, 3) of ``tpsv.color.lab_to_srgb`` (0 where sRGB clips)."""
-    from .color import _WHITE, _XYZ2RGB
+    from ..color import _WHITE, _XYZ2RGB
 
     lab = np.asarray(lab, np.float64).reshape(-1, 3)
     fy = (lab[:, 0] + 16.0) / 116.0
@@ -212,7 +212,7 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
     Z = np.zeros((n, K + 3, K))
     if n == 0:
         return P, Z
-    from .gpu.tps import kernel_lambda
+    from ..gpu.tps import kernel_lambda
 
     lam = kernel_lambda(ks)
     ok = ~ks.degenerate

@@ -3,7 +3,7 @@
 Gradient histogram
 ------------------
 ``mu`` and ``sigma`` are the mean and standard deviation of the gradient
-magnitude that the Canny detector of :mod:`tpsv.features` thresholds: the 3x3
+magnitude that the Canny detector of :mod:`tpsv.encode.features` thresholds: the 3x3
 Sobel of the strongest channel of ``2.55 * Lab`` (L spans 0-255), on the scale
 of ``cv2.Canny`` thresholds for 8-bit images (a step of height ``h`` gives
 ``4 h``). With this scale ``mu`` of ordinary photos falls between the paper's
@@ -46,7 +46,7 @@ per coordinate. The paper's rule (``min_width = 0``) only ever moves by the
 size of the current best: once a threshold has been improved near the bottom
 of its range (``T_super = 1``, say) every later draw stays within ``2
 T_best`` of it, and the search cannot come back up however much better that
-would be. ``tpsv.vectorize`` passes the start point as ``min_width`` for its
+would be. ``tpsv.encode.vectorize`` passes the start point as ``min_width`` for its
 default scheme (measured: the search otherwise sticks at ``T_super`` near 1 on
 all four samples while the best ``w`` is at 15-30).
 """
@@ -59,7 +59,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from .features import LAB_SCALE, _as_index, _as_rgb, lab_gradient
-from .color import srgb_to_lab
+from ..color import srgb_to_lab
 
 #: Paper constants of VI-A.
 C_CANNY = 30.0

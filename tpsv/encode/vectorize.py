@@ -14,16 +14,16 @@ byte count). Every choice below was measured on the four samples:
 
 - gradation features on a regular lattice of each region's ``(S, T)``
   square whose spacing adapts per region to ``T_super``
-  (:class:`tpsv.features.LatticeGradation`), one feature per cell with the
+  (:class:`tpsv.encode.features.LatticeGradation`), one feature per cell with the
   cell's mean colour. It replaced the superpixel-boundary features, which
   cost about 3 bytes per feature (irregular positions) and, sampled on cell
   borders, leave cell interiors to extrapolation;
 - curvilinear pairs on Canny edges, one per ``CURVE_STEP`` x ``CURVE_STEP``
   block (the strongest edge pixel), lattice cells holding one subdivided
-  to ``EDGE_PX`` (:data:`tpsv.features.EDGE_PX`). At the efficiency optimum
+  to ``EDGE_PX`` (:data:`tpsv.encode.features.EDGE_PX`). At the efficiency optimum
   the search mostly raises ``T_canny`` above every edge: a pair costs two
   features and the fitted lattice already follows most edges;
-- feature colours fitted by least squares to the image (:mod:`tpsv.fit`):
+- feature colours fitted by least squares to the image (:mod:`tpsv.encode.fit`):
   at equal features +0.5 to +1 dB over the cells' mean colours on lattices,
   +1.5 to +3.5 dB with edge pairs, +2 to +8 dB over colours sampled at one
   pixel (the paper scheme's). During the search on every
@@ -45,7 +45,7 @@ finest quantisation, the paper's search).
 
 Search
 ------
-The Monte Carlo search of :mod:`tpsv.selection` maximises ``w = 1 / (E C)``
+The Monte Carlo search of :mod:`tpsv.encode.search` maximises ``w = 1 / (E C)``
 over ``(T_canny, T_super)`` from the VI-A start. For the ``"tpsv"`` scheme its
 mutations are at least as wide as the start (``min_width``; the paper's
 ``U(-|T_best|, +|T_best|)`` sticks once ``T_super`` reaches its floor) and
@@ -67,10 +67,11 @@ from typing import Callable
 
 import numpy as np
 
-from . import codec, metrics, outline, patch, segment
-from .errors import TpsvError
+from .. import codec, metrics
+from ..geometry import outline, patch, segment
+from ..errors import TpsvError
 from .features import FeatureExtractor, FeatureSet, LatticeGradation
-from .model import Features, Model, Params, Region
+from ..model import Features, Model, Params, Region
 
 #: Feature schemes (see the module doc).
 SCHEMES = ("tpsv", "paper")
@@ -141,7 +142,7 @@ class Geometry:
     def pixel_st(self, device: str = "cpu") -> np.ndarray:
         """``(S, T)`` of every pixel at scale 1 (cached)."""
         if self.st is None:
-            from .gpu.patchmap import inverse_map_numpy
+            from ..gpu.patchmap import inverse_map_numpy
 
             h, w = self.index.shape
             self.st = inverse_map_numpy([r.patch for r in self.regions], self.index, (w, h), device=device)
@@ -156,7 +157,7 @@ class Geometry:
         return hit[1]
 
     def fit_target(self, rgb: np.ndarray, sub: int = 1):
-        """The :class:`tpsv.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
+        """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
         from .fit import fit_target
 
         return self._cached("fit", rgb, (int(sub),), lambda: fit_target(rgb, self.index, self.pixel_st(), sub))
@@ -259,7 +260,7 @@ def make_model(
     """The model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
     The scheme comes from ``params`` (:func:`scheme_of`). With the ``"tpsv"``
-    scheme and ``fit``, colours are fitted to ``rgb`` (:mod:`tpsv.fit`) after
+    scheme and ``fit``, colours are fitted to ``rgb`` (:mod:`tpsv.encode.fit`) after
     the positions are quantised as the file stores them.
     """
     h, w = rgb.shape[:2]
@@ -323,12 +324,12 @@ def evaluate(
     The render is of the decoded (quantised) model, so the error is the one a
     user of the file sees. ``kernels``: a ``tps.KernelSet`` grouped from a model
     with the same feature positions (its colours are replaced by the decoded
-    ones, :func:`tpsv.fit.recolor_kernels`), to save the grouping. ``maps``:
+    ones, :func:`tpsv.encode.fit.recolor_kernels`), to save the grouping. ``maps``:
     the region index and ``(S, T)`` maps at scale 1 of the decoded model's
     regions (``Geometry.index``, ``Geometry.pixel_st()`` when quantisation
     leaves the regions unchanged), to save computing them.
     """
-    from .render import render
+    from ..render.raster import render
 
     data = codec.encode(model)
     decoded = codec.decode(data)
@@ -339,9 +340,9 @@ def evaluate(
     if maps is None:
         out = render(decoded, device=device, kernels=kernels)
     else:
-        from . import tps
-        from .gpu import resolve_device
-        from .gpu import tps as gtps
+        from ..tps import group as tps
+        from ..gpu import resolve_device
+        from ..gpu import tps as gtps
 
         ks = kernels if kernels is not None else tps.group_kernels(decoded)
         dk = gtps.solve(gtps.upload(ks, resolve_device(device)))
@@ -442,7 +443,7 @@ def vectorize(
     -------
     VectorizeResult
     """
-    from . import selection
+    from . import search as selection
 
     t0 = time.perf_counter()
     h, w = rgb.shape[:2]

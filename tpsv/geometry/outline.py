@@ -50,7 +50,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .errors import TpsvError
+from ..errors import TpsvError
 
 #: RDP tolerance in pixels.
 RDP_TOLERANCE = 0.5

@@ -29,8 +29,8 @@ import math
 import cv2
 import numpy as np
 
-from .errors import TpsvError
-from .model import Patch
+from ..errors import TpsvError
+from ..model import Patch
 
 # --------------------------------------------------------------------------- basis
 

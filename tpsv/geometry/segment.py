@@ -2,7 +2,7 @@
 
 Connectivity: a region is a 4-connected set of pixels of one label (pixels
 that touch only diagonally belong to different regions), matching
-``tpsv.outline`` whose outlines cut between diagonal neighbours.
+``tpsv.geometry.outline`` whose outlines cut between diagonal neighbours.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import TpsvError
+from ..errors import TpsvError
 
 
 def default_min_size(shape: tuple[int, int]) -> int:

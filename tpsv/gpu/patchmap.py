@@ -1,17 +1,17 @@
 """Pixel -> normalised patch parameters (S, T), as Warp kernels (cpu and cuda).
 
-This is ``tpsv.patch.inverse`` for every output pixel at once, one thread per
+This is ``tpsv.geometry.patch.inverse`` for every output pixel at once, one thread per
 pixel, in float32. Layout (:class:`PatchSet`), all flat device arrays:
 
 * ``coef``: per cell of every patch, the 16 power-basis coefficients
   ``K[p, q]`` (vec2) of ``M(u, v) = sum K[p, q] u^p v^q``
-  (``tpsv.patch.coefficients``), cells in row-major ``(i, j)`` order;
+  (``tpsv.geometry.patch.coefficients``), cells in row-major ``(i, j)`` order;
 * ``pos``: control-point positions (vec2), row-major ``(i, j)``;
 * ``reg_i`` (R, 4) int32: ``M, N, pos offset, coef offset``;
 * ``reg_f`` (R, 7) float32: ``affine flag, O (2), A^-1 (4)``; an exactly affine
   patch (fresh from ``build_patch``) is inverted in closed form.
 
-Other patches: the same algorithm as ``tpsv.patch.inverse``: a walk over the
+Other patches: the same algorithm as ``tpsv.geometry.patch.inverse``: a walk over the
 control-point quads from the bilinear guess of the four patch corners locates
 the cell, ``n_itr`` levels of 2D binary search (stopping once the centre of
 the square is within ``t_loc`` px), then up to ``newton`` Newton steps on the
@@ -21,7 +21,7 @@ normalised, ``S = s / (M-1)``, ``T = t / (N-1)``, clamped to ``[0, 1]``.
 
 Output pixel ``(X, Y)`` of an ``H x W`` index map samples source point
 ``((X + 0.5) * Ws / W, (Y + 0.5) * Hs / H)`` where ``(Ws, Hs) = src_size``, as
-in ``tpsv.outline.rasterize_regions``. Pixels with a negative index get
+in ``tpsv.geometry.outline.rasterize_regions``. Pixels with a negative index get
 ``(-1, -1)``.
 """
 
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import warp
-from ..patch import affine_frame, coefficients
+from ..geometry.patch import affine_frame, coefficients
 
 wp = warp()
 
@@ -319,7 +319,7 @@ def inverse_map(
         One per region (``Model.regions[k].patch``); ignored when
         ``patch_set`` is given.
     index : ndarray (H, W) int32 or wp.array2d(int32)
-        Region of every output pixel (``tpsv.outline.rasterize_regions``).
+        Region of every output pixel (``tpsv.geometry.outline.rasterize_regions``).
     src_size : (Ws, Hs)
         Model size; output pixel (X, Y) samples ``((X+0.5) Ws/W, (Y+0.5) Hs/H)``.
     device : str

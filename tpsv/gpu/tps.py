@@ -7,7 +7,7 @@ Solve (per kernel, float64)
 ---------------------------
 Eq. (4) of the paper, ``[Phi + lambda I, P; P^T, 0] [w; b] = [h; 0]``, is
 solved in the null space of ``P^T``. With the kernel's anchors ``a0, a1, a2``
-(slots 0-2, chosen by :func:`tpsv.tps.group_kernels`) and ``L_j`` the
+(slots 0-2, chosen by :func:`tpsv.tps.group.group_kernels`) and ``L_j`` the
 barycentric coordinates of feature ``j`` w.r.t. the anchors,
 ``Q = [-L^T; I]`` spans ``null(P^T)``; ``w = Q gamma`` and
 
@@ -33,7 +33,7 @@ threads (Warp's CPU launches run one thread each and release the GIL);
 results do not depend on the split. The tile solve is one launch: Warp's CPU
 tile kernels share one static scratch block, so two must never run at once.
 
-A degenerate kernel (see ``tpsv.tps``) and any kernel whose solve is not
+A degenerate kernel (see ``tpsv.tps.group``) and any kernel whose solve is not
 finite (which should not happen) get the affine fallback: least squares
 along the line through anchors 0 and 1, constant across it (``w = 0``).
 
@@ -48,7 +48,7 @@ Rasterise
 ---------
 One thread per output pixel: its region, its ``(S, T)``, the at most 2 x 2
 covering kernels of the region's grid, the TPS of each in its local frame,
-the partition-of-unity blend (``tpsv.tps`` module doc), then Lab -> sRGB with
+the partition-of-unity blend (``tpsv.tps.group`` module doc), then Lab -> sRGB with
 the formulas of ``tpsv.color``, clamped to ``[0, 1]``.
 
 Range clamp (``clamp=True``, the default of :func:`rasterise`): each
@@ -646,7 +646,7 @@ def _weights(
 
 @dataclass
 class DeviceKernels:
-    """A :class:`tpsv.tps.KernelSet` on a device, with scratch and coefficients.
+    """A :class:`tpsv.tps.group.KernelSet` on a device, with scratch and coefficients.
 
     After :func:`solve`: ``w64`` (n, K) vec3d and ``b64`` (n, 3) vec3d hold the
     float64 coefficients in each kernel's local frame (rows of ``b``:
@@ -713,7 +713,7 @@ def kernel_lambda(ks) -> np.ndarray:
 
 
 def upload(ks, device: str = "cpu") -> DeviceKernels:
-    """Copy a :class:`tpsv.tps.KernelSet` to ``device`` and allocate the solver's arrays."""
+    """Copy a :class:`tpsv.tps.group.KernelSet` to ``device`` and allocate the solver's arrays."""
     _warp()
     device = resolve_device(device)
     K = int(ks.kernel_size)
@@ -987,7 +987,7 @@ def render_timed(ks, region, st, device: str = "cpu", repeat: int = 1, threads: 
     return img, best
 
 
-# --------------------------------------------------------------------------- incremental rebuild (tpsv.live)
+# --------------------------------------------------------------------------- incremental rebuild (tpsv.render.live)
 
 
 @wp.kernel
@@ -1031,7 +1031,7 @@ def _copy_solution(
 
 
 def subset_kernels(ks, kernels):
-    """A :class:`tpsv.tps.KernelSet` holding only the kernels ``kernels`` (int array), for solving.
+    """A :class:`tpsv.tps.group.KernelSet` holding only the kernels ``kernels`` (int array), for solving.
 
     The features (``st``, ``lab``), region scales and fill colours are shared
     with ``ks``; the grid is emptied (the subset is solved, never rasterised).

@@ -13,8 +13,8 @@ kernels, the rendered image) and brings them up to date for a new model:
 2. **Grouping.** When the features' regions and ``(S, T)``, the patches and
    the TPS parameters are unchanged (a colour edit: ``recolor``), the
    grouping is unchanged too: the kernel set is reused with the new colours
-   (duplicate merging redone exactly as :func:`tpsv.tps.group_kernels` does).
-   Otherwise the kernels are regrouped with :func:`tpsv.tps.group_kernels`.
+   (duplicate merging redone exactly as :func:`tpsv.tps.group.group_kernels` does).
+   Otherwise the kernels are regrouped with :func:`tpsv.tps.group.group_kernels`.
 3. **Solve.** A kernel whose system is identical to one already solved (same
    local points, colours, frame, count and smoothing: compared bit for bit)
    reuses that solution; the others are solved as a subset
@@ -25,7 +25,7 @@ kernels, the rendered image) and brings them up to date for a new model:
    into its neighbours), plus the geometry changes of step 1
    (:func:`tpsv.gpu.tps.rasterise_pixels`).
 
-The result is bit-identical to :func:`tpsv.render.render` of the new model
+The result is bit-identical to :func:`tpsv.render.raster.render` of the new model
 (tests check it); :class:`UpdateStats` says how much was rebuilt.
 """
 
@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import tps
+from ..tps import group as tps
 
 
 #: Above this fraction of dirty pixels, every pixel is rasterised (one regular launch).
@@ -87,7 +87,7 @@ class UpdateStats:
 
 def same_geometry(a, b) -> bool:
     """Whether two models have the same size, outlines, patches and draw order."""
-    from .render import draw_order
+    from .raster import draw_order
 
     if (a.width, a.height) != (b.width, b.height) or len(a.regions) != len(b.regions):
         return False
@@ -168,7 +168,7 @@ class _Merge:
 
 def kernel_keys(ks) -> np.ndarray:
     """One byte string per kernel that determines its solution (frame, smoothing, count, slots' (S, T) and Lab)."""
-    from .gpu.tps import kernel_lambda
+    from ..gpu.tps import kernel_lambda
 
     n, K = ks.n_kernels, ks.kernel_size
     idx = np.maximum(ks.index, 0)
@@ -191,7 +191,7 @@ class LiveImage:
     ----------
     model : Model
     width, height, scale : optional
-        Output size, as for :func:`tpsv.render.render` (default scale 1).
+        Output size, as for :func:`tpsv.render.raster.render` (default scale 1).
     device : str
         Warp device.
     threads : int, optional
@@ -203,7 +203,7 @@ class LiveImage:
     ----------
     model : Model
         The current model (not copied: do not mutate it).
-    kernels : tpsv.tps.KernelSet
+    kernels : tpsv.tps.group.KernelSet
     stats : UpdateStats
         Figures of the last build or update.
 
@@ -217,7 +217,7 @@ class LiveImage:
     """
 
     def __init__(self, model, width=None, height=None, scale=None, device: str = "cpu", threads=None, clamp: bool = True):
-        from .gpu import resolve_device
+        from ..gpu import resolve_device
 
         self.device = resolve_device(device)
         self._size_args = (width, height, scale)
@@ -251,9 +251,9 @@ class LiveImage:
     def _rebuild(self, model, full: bool) -> UpdateStats:
         import warp as wp
 
-        from .gpu import tps as gtps
-        from .gpu.patchmap import inverse_map
-        from .render import output_size, region_index
+        from ..gpu import tps as gtps
+        from ..gpu.patchmap import inverse_map
+        from .raster import output_size, region_index
 
         dev = self.device
         times: dict = {}

@@ -17,9 +17,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .color import srgb_to_lab
-from .model import GRADATION, Features, Model, Params
-from .vectorize import Geometry, build_geometry, to_patch_space
+from ..color import srgb_to_lab
+from ..model import GRADATION, Features, Model, Params
+from ..encode.vectorize import Geometry, build_geometry, to_patch_space
 
 
 def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Params | None = None) -> tuple[Model, np.ndarray]:
@@ -85,7 +85,7 @@ def back_project(
     Model
         The model with fitted colours.
     """
-    from .render import render
+    from .raster import render
 
     h, w = rgb.shape[:2]
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
@@ -112,7 +112,7 @@ def magnify_raster(
 
     Returns the fitted model and the render at ``size``.
     """
-    from .render import render
+    from .raster import render
 
     model, pixel = dense_model(rgb, labels)
     model = back_project(model, pixel, rgb, size, iterations=iterations, device=device)

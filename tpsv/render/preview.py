@@ -12,9 +12,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .model import CURVILINEAR, GRADATION, Model
-from .patch import denormalize, forward
-from .segment import palette
+from ..model import CURVILINEAR, GRADATION, Model
+from ..geometry.patch import denormalize, forward
+from ..geometry.segment import palette
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 

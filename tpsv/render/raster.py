@@ -17,7 +17,7 @@ Draw order: where region outlines overlap (only after an edit such as
 ``deform`` moves a region), the region drawn first keeps the pixel. Regions are
 drawn in index order, except that the regions listed in
 ``model.params.extra["front"]`` (:data:`FRONT_KEY`, a comma-separated list of
-region indices, written by ``tpsv.deform``) are drawn before all others, in
+region indices, written by ``tpsv.edit.deform``) are drawn before all others, in
 the order listed: they are on top. See :func:`region_index`.
 
 A region without features (``vectorize`` never makes one) renders flat in the
@@ -32,8 +32,9 @@ import time
 
 import numpy as np
 
-from . import outline, tps
-from .errors import TpsvError
+from ..geometry import outline
+from ..tps import group as tps
+from ..errors import TpsvError
 
 #: ``Params.extra`` key: regions drawn on top (comma-separated indices, first on top).
 FRONT_KEY = "front"
@@ -129,7 +130,7 @@ def region_index(model, width: int, height: int) -> np.ndarray:
 def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True) -> np.ndarray:
     """Render ``model``; returns float32 sRGB ``(H, W, 3)`` in ``[0, 1]``.
 
-    ``kernels``: a :class:`tpsv.tps.KernelSet` from an earlier
+    ``kernels``: a :class:`tpsv.tps.group.KernelSet` from an earlier
     ``tps.group_kernels(model)`` to reuse (it must belong to this model).
     ``threads``: host threads for CPU launches (default: all cores).
     ``clamp``: clamp each kernel to its features' Lab range before blending
@@ -160,9 +161,9 @@ def render_timed(model, width=None, height=None, scale=None, device: str = "cpu"
 
 
 def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool):
-    from .gpu import resolve_device
-    from .gpu import tps as gtps
-    from .gpu.patchmap import inverse_map
+    from ..gpu import resolve_device
+    from ..gpu import tps as gtps
+    from ..gpu.patchmap import inverse_map
 
     W, H = output_size(model, width, height, scale)
     device = resolve_device(device)

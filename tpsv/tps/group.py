@@ -83,7 +83,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import TpsvError
+from ..errors import TpsvError
 
 #: Largest K: the solver keeps a K x K float64 tile in shared memory (about
 #: 128 KiB at 128; CUDA blocks have at most about 227 KiB, Warp's CPU tiles 256 KiB).
