@@ -383,3 +383,96 @@ def test_lattice_cells_with_edges_are_subdivided():
     more = lat.features(1e6, edge)
     assert len(more) > len(plain)
     assert np.all((more.st >= 0) & (more.st <= 1))
+
+
+# ------------------------------------------------------------ shared pieces, written once
+
+
+def test_feature_set_is_features_with_pixel_positions():
+    from tpsv.model import Features
+
+    rgb, index = tiny_regions_case()
+    fs = extract_features(rgb, index, 40.0, 20.0)
+    assert isinstance(fs, Features) and np.isnan(fs.st).all()  # every feature defined by its pixel
+    keep = np.arange(len(fs)) % 3 != 1
+    sub = fs.subset(keep)
+    assert isinstance(sub, FeatureSet) and np.array_equal(sub.xy, fs.xy[keep])
+    check_pairs(sub)
+    both = FeatureSet.concat([sub, fs])
+    assert np.array_equal(both.xy, np.concatenate([sub.xy, fs.xy]))
+    assert np.array_equal(both.pair[len(sub):], np.where(fs.pair >= 0, fs.pair + len(sub), -1))
+    assert len(FeatureSet.empty()) == 0 and FeatureSet.empty().xy.shape == (0, 2)
+
+
+def test_in_patch_space_maps_only_features_defined_by_pixels():
+    from tpsv.geometry.regions import to_patch_space
+
+    rgb = textured()
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    labels[:, 40:] = 1
+    g, lat = lattice_for(rgb, labels)
+    fe = FeatureExtractor(rgb, g.index)
+    cur, grad = fe.curvilinear(30.0), lat.features(20.0)
+    fs = FeatureSet.concat([cur, grad])
+    patches = [r.patch for r in g.regions]
+    f = fs.in_patch_space(patches)
+    assert np.array_equal(f.st[len(cur):], grad.st)  # lattice positions kept as they are
+    assert np.array_equal(f.st[:len(cur)], to_patch_space(patches, cur.xy, cur.region))
+    assert f.region.dtype == np.int32 and f.lab.dtype == np.float32 and not hasattr(f, "xy")
+
+
+def test_drop_near_drops_exactly_the_close_gradation_features():
+    from tpsv.encode.features import DEDUP_PX, drop_near
+
+    rgb, index = tiny_regions_case()
+    fe = FeatureExtractor(rgb, index)
+    cur, grad = fe.curvilinear(40.0), fe.boundary_features(1.0)
+    kept = drop_near(grad, cur, DEDUP_PX, (fe.w, fe.h))
+    assert 0 < len(kept) < len(grad)
+
+    def nearest(fs):
+        d = np.hypot(*(fs.xy[:, None, :] - cur.xy[None, :, :]).transpose(2, 0, 1))
+        d[fs.region[:, None] != cur.region[None, :]] = np.inf
+        return d.min(axis=1)
+
+    assert np.all(nearest(kept) > DEDUP_PX)
+    assert np.sum(nearest(grad) <= DEDUP_PX) == len(grad) - len(kept)
+    assert drop_near(grad, cur, 0.0, (fe.w, fe.h)) is grad
+
+
+def test_gradation_and_extract_share_boundary_features_and_anchors():
+    from tpsv.encode.features import DEDUP_PX, drop_near
+
+    rgb, index = tiny_regions_case()
+    fe = FeatureExtractor(rgb, index)
+    boundary = fe.boundary_features(20.0)
+    anchors = fe.anchors(boundary)
+    assert len(anchors) > 0  # the 1-2 px regions need them
+    g = fe.gradation(20.0)
+    assert np.array_equal(g.xy, np.concatenate([boundary.xy, anchors.xy]))
+    cur = fe.curvilinear(40.0)
+    merged = FeatureSet.concat([cur, drop_near(boundary, cur, DEDUP_PX, (fe.w, fe.h)), anchors])
+    ref = merged.subset(np.argsort(merged.region, kind="stable"))
+    got = fe.extract(40.0, 20.0)
+    for name in ("xy", "region", "lab", "kind", "pair"):
+        assert np.array_equal(getattr(got, name), getattr(ref, name)), name
+
+
+def test_cell_stats_against_direct_means():
+    from tpsv.encode.features import LAB_SCALE, cell_stats
+
+    rng = np.random.default_rng(4)
+    col = rng.random((200, 3)) * 50
+    cell = rng.integers(0, 7, 200)
+    cell[cell == 5] = 6  # an empty cell
+    st = cell_stats(cell, 8, col, LAB_SCALE**2)
+    for c in range(8):
+        sel = cell == c
+        assert st["count"][c] == sel.sum()
+        if sel.any():
+            assert np.allclose(st["lab"][c], col[sel].mean(0))
+            assert st["rms"][c] == pytest.approx(LAB_SCALE * np.sqrt(col[sel].var(0).sum()), rel=1e-9)
+        else:
+            assert st["rms"][c] == 0 and np.all(st["lab"][c] == 0)
+    plain = cell_stats(cell, 8, col * LAB_SCALE)
+    assert np.allclose(plain["rms"], st["rms"], rtol=1e-9)

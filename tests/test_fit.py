@@ -9,7 +9,7 @@ import pytest
 
 from tpsv import codec, metrics
 from tpsv.encode import fit
-from tpsv.tps import group as tps
+from tpsv import tps
 from tpsv.color import lab_to_srgb, srgb_to_lab
 from tpsv.encode.features import FeatureExtractor
 from tpsv.render.raster import render
@@ -112,7 +112,7 @@ def test_recolor_kernels_equals_grouping(setup):
     fitted, rep = fit.fit_colors(m, rgb, iterations=3)
     dec = codec.quantize(fitted)
     a = tps.group_kernels(dec)
-    b = fit.recolor_kernels(rep.kernels, dec)
+    b = tps.recolor(rep.kernels, dec.features)
     for name in ("lab", "index", "st", "fill", "frame", "grid"):
         assert np.array_equal(getattr(a, name), getattr(b, name))
 

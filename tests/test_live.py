@@ -7,7 +7,7 @@ import pytest
 
 from editfixtures import DISC, PANEL, photo_model, scene_model
 from tpsv.edit import crossmap, deform, recolor
-from tpsv.tps import group as tps
+from tpsv import tps
 from tpsv.gpu import tps as gtps
 from tpsv.render.live import LiveImage, kernel_keys
 from tpsv.render.raster import render

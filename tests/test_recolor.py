@@ -11,7 +11,8 @@ from tpsv.edit import recolor
 from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import CURVILINEAR, GRADATION
-from tpsv.render.raster import region_index, render
+from tpsv.render.pixelmap import region_index
+from tpsv.render.raster import render
 
 
 @pytest.fixture(scope="module")

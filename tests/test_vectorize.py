@@ -13,9 +13,14 @@ from tpsv import codec, metrics
 from tpsv.encode import search as selection
 from tpsv.cli import main
 from tpsv.errors import TpsvError
+from tpsv.model import Params
 from tpsv.encode.features import FeatureExtractor
 from tpsv.render.raster import render
-from tpsv.encode.vectorize import build_geometry, make_model, scan_order, scheme_of, scheme_params, to_patch_space, vectorize
+from tpsv.encode.vectorize import (
+    SCHEME_PARAMS, Candidates, build_geometry, finish, label_map, make_model, scan_order, scheme_of, scheme_params,
+    search_thresholds, start_thresholds, vectorize,
+)
+from tpsv.geometry.regions import to_patch_space
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +51,7 @@ def test_plain_scheme_reproduces_the_paper_pipeline(scene):
     g = build_geometry(labels)
     c0, s0 = selection.initial_thresholds(rgb, g.index)
     fs = FeatureExtractor(rgb, g.index).extract(c0, s0)
-    st = to_patch_space(g, fs.xy, fs.region)
+    st = to_patch_space([r.patch for r in g.regions], fs.xy, fs.region)
     ref = codec.quantize(replace(m, features=replace(
         m.features, region=fs.region.astype(np.int32), st=st, lab=fs.lab.astype(np.float32),
         kind=fs.kind.astype(np.uint8), pair=fs.pair.astype(np.int32))))
@@ -113,3 +118,82 @@ def test_cli_plain_flag(tmp_path, small_png):
     s2 = json.loads(r.output)
     assert s2["scheme"] == "tpsv" and s2["bytes"] < s["bytes"]
     assert codec.load(out2).params.kernel_size == 32
+
+
+# ------------------------------------------------------------------------- the stages
+
+
+def test_params_defaults_are_the_default_scheme():
+    assert scheme_of(Params()) == "tpsv" and scheme_params() == Params()
+    paper = scheme_params("paper")
+    assert scheme_of(paper) == "paper"
+    assert {k: getattr(paper, k) for k in SCHEME_PARAMS["paper"]} == SCHEME_PARAMS["paper"]
+
+
+def test_label_map_stage(scene):
+    rgb, labels = scene
+    assert label_map(rgb, labels) is labels
+    auto = label_map(rgb, None, seed=0)
+    assert auto.shape == labels.shape
+    with pytest.raises(TpsvError, match="label map is"):
+        label_map(rgb, labels[:, :-1])
+
+
+def test_start_thresholds_stage_keeps_given_thresholds(scene):
+    rgb, labels = scene
+    g = build_geometry(labels)
+    c0, s0 = start_thresholds(rgb, g)
+    assert (c0, s0) == selection.initial_thresholds(rgb, g.index)
+    assert start_thresholds(rgb, g, t_canny=77.0) == (77.0, s0)
+    assert start_thresholds(rgb, g, t_super=3.5) == (c0, 3.5)
+
+
+def test_stages_give_vectorize_without_search(scene):
+    rgb, labels = scene
+    g = build_geometry(label_map(rgb, labels))
+    cands = Candidates(rgb, g, scheme_params())
+    out = cands.evaluate(*start_thresholds(rgb, g))
+    res = vectorize(rgb, labels, search=False)
+    assert out.data == res.data and out.mse == res.mse
+    assert out.efficiency() == metrics.efficiency(res.mse, len(res.data), rgb.shape[1], rgb.shape[0])
+    # the unfitted colours of stage 4, then the fit of stage 5, give the model's colours
+    model = cands.model(*start_thresholds(rgb, g))
+    lab, ks = cands.fitted_colours(model, final=True)
+    assert np.array_equal(model.features.st, res.model.features.st)
+    assert ks.n_kernels > 0 and lab.shape == model.features.lab.shape
+
+
+def test_stages_give_vectorize_with_search(scene):
+    rgb, labels = scene
+    g = build_geometry(labels)
+    cands = Candidates(rgb, g, scheme_params())
+    start = start_thresholds(rgb, g)
+    calls = []
+    best, result = search_thresholds(cands, start, iterations=4, seed=5, progress=lambda d, n: calls.append((d, n)))
+    assert best == (result.t_canny, result.t_super)
+    assert result.history[0][:2] == pytest.approx(start, abs=0.05)  # the search rounds to 0.1
+    assert calls == [(k + 1, 4) for k in range(len(result.history))]
+    out = finish(cands, best, start, result, choose_steps=True)
+    res = vectorize(rgb, labels, search=True, iterations=4, seed=5)
+    assert out.data == res.data and res.history == result.history
+
+
+def test_search_stage_keeps_a_fixed_threshold(scene):
+    rgb, labels = scene
+    g = build_geometry(labels)
+    cands = Candidates(rgb, g, scheme_params("paper"))
+    start = start_thresholds(rgb, g, t_canny=90.0)
+    best, result = search_thresholds(cands, start, (True, False), iterations=3, seed=1)
+    assert best[0] == 90.0 and best[1] == result.t_super
+
+
+def test_candidates_with_identical_features_share_their_fit(scene):
+    rgb, labels = scene
+    g = build_geometry(labels)
+    cands = Candidates(rgb, g, scheme_params())
+    s0 = start_thresholds(rgb, g)[1]
+    a = cands.evaluate(1400.0, s0, final=False)  # both above every edge: no curvilinear pair
+    b = cands.evaluate(1500.0, s0, final=False)
+    assert a.mse == b.mse and a.data != b.data  # the files differ in their params only
+    assert np.array_equal(a.model.features.lab, b.model.features.lab)
+    assert len(cands._fits) == 1

@@ -9,9 +9,11 @@ import copy
 
 import numpy as np
 
-from ..geometry import patch as hpatch
+from .. import tps
 from ..errors import TpsvError
+from ..geometry.regions import to_pixel_space
 from ..model import Features, Model
+from ..render.pixelmap import region_index
 
 
 def copy_model(model: Model) -> Model:
@@ -44,11 +46,9 @@ def region_at(model: Model, xy) -> int:
     """The region the renderer shows at pixel-space point ``xy`` (at scale 1).
 
     The pixel containing the point gets its region from the vector outlines
-    (``tpsv.render.raster.region_index``, draw order honoured), so this is the region
+    (``tpsv.render.pixelmap.region_index``, draw order honoured), so this is the region
     a user sees under the cursor.
     """
-    from ..render.raster import region_index
-
     p = check_point(model, xy)
     if not model.regions:
         raise TpsvError("the model has no regions")
@@ -57,21 +57,20 @@ def region_at(model: Model, xy) -> int:
 
 
 def feature_xy(model: Model, features: Features | None = None) -> np.ndarray:
-    """Pixel-space positions ``(F, 2)`` of features: ``M(S (M-1), T (N-1))`` in their region's patch."""
+    """Pixel-space positions ``(F, 2)`` of features: ``M(S (M-1), T (N-1))`` in their region's patch.
+
+    Parameters
+    ----------
+    model : Model
+    features : Features, optional
+        Features of ``model``'s regions (default: ``model.features``).
+
+    Returns
+    -------
+    ndarray (F, 2) float64
+    """
     f = model.features if features is None else features
-    out = np.zeros((len(f), 2), np.float64)
-    reg = np.asarray(f.region, np.int64)
-    for r in np.unique(reg):
-        sel = reg == r
-        p = model.regions[int(r)].patch
-        out[sel] = hpatch.forward(p, *hpatch.denormalize(p, f.st[sel]).T)
-    return out
-
-
-def point_st(model: Model, region: int, xy) -> np.ndarray:
-    """Normalised ``(S, T)`` of pixel-space points ``xy`` (n, 2) in ``region``'s patch (clamped to [0, 1])."""
-    p = model.regions[region].patch
-    return hpatch.normalize(p, hpatch.inverse(p, np.asarray(xy, np.float64).reshape(-1, 2)))
+    return to_pixel_space([r.patch for r in model.regions], f.region, f.st)
 
 
 def sort_by_region(f: Features) -> Features:
@@ -83,16 +82,8 @@ def sort_by_region(f: Features) -> Features:
 
 
 def concat_features(a: Features, b: Features) -> Features:
-    """``a`` then ``b`` (``b``'s pair indices shifted), not sorted."""
-    n = len(a)
-    pb = np.where(b.pair >= 0, b.pair + n, -1)
-    return Features(
-        region=np.concatenate([a.region, b.region]).astype(np.int32),
-        st=np.concatenate([a.st, b.st]).astype(np.float64),
-        lab=np.concatenate([a.lab, b.lab]).astype(np.float32),
-        kind=np.concatenate([a.kind, b.kind]).astype(np.uint8),
-        pair=np.concatenate([a.pair, pb]).astype(np.int32),
-    )
+    """``a`` then ``b`` (``b``'s pair indices shifted), not sorted (:meth:`tpsv.model.Features.concat`)."""
+    return Features.concat([a, b])
 
 
 def clip_lab(lab: np.ndarray) -> np.ndarray:
@@ -105,8 +96,7 @@ def clip_lab(lab: np.ndarray) -> np.ndarray:
 
 def solved_kernels(model: Model, device: str = "cpu"):
     """Grouped and solved kernels of ``model`` (for sampling its TPS colours at points)."""
-    from ..tps import group as tps
-    from ..gpu import tps as gtps
+    from ..gpu import tps as gtps  # lazy: importing Warp costs start-up time (tpsv.gpu)
 
     ks = tps.group_kernels(model)
     return gtps.solve(gtps.upload(ks, device))
@@ -117,7 +107,7 @@ def tps_lab(model: Model, region, st, device: str = "cpu", dk=None) -> np.ndarra
 
     ``region`` (n,) or a scalar; ``st`` (n, 2). Returns (n, 3) float64.
     """
-    from ..gpu import tps as gtps
+    from ..gpu import tps as gtps  # lazy: importing Warp costs start-up time (tpsv.gpu)
 
     st = np.asarray(st, np.float64).reshape(-1, 2)
     if st.shape[0] == 0:

@@ -28,7 +28,7 @@ regions; a selected half whose partner is not selected changes alone, so the
 far side of the edge keeps its colour and the border keeps its character
 (paper Fig. 13). Both halves change only when both are selected.
 
-Operations (:func:`recolor_features`), applied in this order
+Operations (:func:`recolor_selected`), applied in this order
 ------------------------------------------------------------
 1. ``matrix``: a 3 x 3 matrix applied to the colours of the selected
    *gradation* features (the paper's "shading" transform; curvilinear
@@ -70,6 +70,8 @@ et al. Eq. 2): ``h' = c + sign(h - c) (w / 2) (1 - G_sigma(|h - c|))`` with
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -271,6 +273,133 @@ def parse_matrix(m) -> np.ndarray:
     return a.reshape(3, 3)
 
 
+@dataclass(frozen=True)
+class Recolored:
+    """The result of a colour edit: the new model and what the edit did.
+
+    Attributes
+    ----------
+    model : Model
+        The edited model (a new one; the input is not modified).
+    selected : int
+        Features in the selection.
+    changed : int
+        Features whose stored colour differs from the input's.
+    template, rotation : str or None, float or None
+        The harmonic template and its rotation (degrees) that ``harmonize``
+        fitted; None when harmonisation was off.
+    """
+
+    model: Model
+    selected: int
+    changed: int
+    template: str | None = None
+    rotation: float | None = None
+
+    def summary(self) -> dict:
+        """``selected``, ``changed`` and, with harmonisation, ``template`` and ``rotation``."""
+        out = {"selected": self.selected, "changed": self.changed}
+        if self.template is not None:
+            out["template"] = self.template
+            out["rotation"] = self.rotation
+        return out
+
+
+def _check_operations(n_features: int, mask, hue, shift_ab, lightness, matrix_space) -> np.ndarray:
+    mask = np.asarray(mask, bool).reshape(-1)
+    if mask.shape[0] != n_features:
+        raise TpsvError("the selection does not match the model's features")
+    if matrix_space not in ("rgb", "lab"):
+        raise TpsvError(f"matrix space {matrix_space!r} is not rgb or lab")
+    vals = [float(hue), float(lightness)] + [float(v) for v in np.asarray(shift_ab, np.float64).reshape(-1)]
+    if len(vals) != 4 or not np.all(np.isfinite(vals)):
+        raise TpsvError("hue, lightness and ab shift must be finite numbers (shift: two of them)")
+    return mask
+
+
+def _apply_operations(cur, kind, hue, shift_ab, lightness, matrix, matrix_space) -> np.ndarray:
+    """Steps 1-4 of the module docstring on colours ``cur`` (n, 3) float64 of kinds ``kind`` (n,)."""
+    if matrix is not None:
+        M = parse_matrix(matrix)
+        grad = kind == GRADATION
+        if grad.any():
+            g = cur[grad]
+            if matrix_space == "rgb":
+                rgb = np.clip(lab_to_srgb(g).astype(np.float64) @ M.T, 0.0, 1.0)
+                g = srgb_to_lab(rgb).astype(np.float64)
+            else:
+                g = g @ M.T
+            cur[grad] = clip_lab(g)
+    if hue:
+        th = np.radians(float(hue))
+        a, b = cur[:, 1].copy(), cur[:, 2].copy()
+        cur[:, 1] = a * np.cos(th) - b * np.sin(th)
+        cur[:, 2] = a * np.sin(th) + b * np.cos(th)
+    da, db = (float(v) for v in np.asarray(shift_ab, np.float64).reshape(2))
+    cur[:, 1] += da
+    cur[:, 2] += db
+    cur[:, 0] += float(lightness)
+    return cur
+
+
+def recolor_selected(
+    model: Model,
+    mask,
+    hue: float = 0.0,
+    shift_ab=(0.0, 0.0),
+    lightness: float = 0.0,
+    matrix=None,
+    matrix_space: str = "rgb",
+    harmonize: str | None = None,
+) -> Recolored:
+    """Apply the colour operations to the features in ``mask``, and report what was done.
+
+    Parameters
+    ----------
+    model : Model
+    mask : array (F,) bool
+        The selection (:func:`select`).
+    hue, shift_ab, lightness, matrix, matrix_space, harmonize
+        The operations of the module docstring, applied in its order.
+        ``harmonize``: None (off), ``'auto'`` or a template name; the
+        template is fitted to the selected features' colours after steps 1-4.
+
+    Returns
+    -------
+    Recolored
+        The new model, the selected and changed feature counts and, with
+        ``harmonize``, the template and rotation used (for an empty
+        selection, those :func:`harmonic_template` gives for no colours).
+
+    Raises
+    ------
+    TpsvError
+        A selection of the wrong length, an unknown matrix space or
+        template, non-finite numbers.
+    """
+    f = model.features
+    mask = _check_operations(len(f), mask, hue, shift_ab, lightness, matrix_space)
+    out = copy_model(model)
+    lab = f.lab.astype(np.float64).copy()
+    sel = np.flatnonzero(mask)
+    harmony = None
+    if sel.size:
+        cur = _apply_operations(lab[sel], f.kind[sel], hue, shift_ab, lightness, matrix, matrix_space)
+        if harmonize:
+            harmony = harmonic_template(clip_lab(cur), harmonize)
+            cur = harmonize_hues(cur, harmony[0], harmony[1])
+        lab[sel] = clip_lab(cur)
+    elif harmonize:
+        harmony = harmonic_template(np.zeros((0, 3)), harmonize)
+    new_lab = f.lab.copy()
+    new_lab[sel] = lab[sel].astype(np.float32)
+    out.features.lab = new_lab
+    changed = int((new_lab != f.lab).any(axis=1).sum())
+    if harmony is None:
+        return Recolored(out, int(sel.size), changed)
+    return Recolored(out, int(sel.size), changed, template=harmony[0], rotation=harmony[1])
+
+
 def recolor_features(
     model: Model,
     mask,
@@ -283,52 +412,16 @@ def recolor_features(
 ) -> Model:
     """Apply the colour operations to the features in ``mask``; returns a new model.
 
-    See the module docstring for the operations and their order.
-    ``harmonize``: None (off), ``'auto'`` or a template name; the template
-    is fitted to the selected features' colours after steps 1-4.
+    The model of :func:`recolor_selected` (which also reports the counts and
+    the harmonic template); see the module docstring for the operations and
+    their order.
+
+    Returns
+    -------
+    Model
     """
-    mask = np.asarray(mask, bool).reshape(-1)
-    f = model.features
-    if mask.shape[0] != len(f):
-        raise TpsvError("the selection does not match the model's features")
-    if matrix_space not in ("rgb", "lab"):
-        raise TpsvError(f"matrix space {matrix_space!r} is not rgb or lab")
-    vals = [float(hue), float(lightness)] + [float(v) for v in np.asarray(shift_ab, np.float64).reshape(-1)]
-    if len(vals) != 4 or not np.all(np.isfinite(vals)):
-        raise TpsvError("hue, lightness and ab shift must be finite numbers (shift: two of them)")
-    out = copy_model(model)
-    lab = f.lab.astype(np.float64).copy()
-    sel = np.flatnonzero(mask)
-    if sel.size:
-        cur = lab[sel]
-        if matrix is not None:
-            M = parse_matrix(matrix)
-            grad = f.kind[sel] == GRADATION
-            if grad.any():
-                g = cur[grad]
-                if matrix_space == "rgb":
-                    rgb = np.clip(lab_to_srgb(g).astype(np.float64) @ M.T, 0.0, 1.0)
-                    g = srgb_to_lab(rgb).astype(np.float64)
-                else:
-                    g = g @ M.T
-                cur[grad] = clip_lab(g)
-        if hue:
-            th = np.radians(float(hue))
-            a, b = cur[:, 1].copy(), cur[:, 2].copy()
-            cur[:, 1] = a * np.cos(th) - b * np.sin(th)
-            cur[:, 2] = a * np.sin(th) + b * np.cos(th)
-        da, db = (float(v) for v in np.asarray(shift_ab, np.float64).reshape(2))
-        cur[:, 1] += da
-        cur[:, 2] += db
-        cur[:, 0] += float(lightness)
-        if harmonize:
-            name, rot, _ = harmonic_template(clip_lab(cur), harmonize)
-            cur = harmonize_hues(cur, name, rot)
-        lab[sel] = clip_lab(cur)
-    new_lab = f.lab.copy()
-    new_lab[sel] = lab[sel].astype(np.float32)
-    out.features.lab = new_lab
-    return out
+    return recolor_selected(model, mask, hue=hue, shift_ab=shift_ab, lightness=lightness, matrix=matrix,
+                            matrix_space=matrix_space, harmonize=harmonize).model
 
 
 def recolor(

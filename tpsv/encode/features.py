@@ -84,12 +84,16 @@ points offset a quarter pixel across the line inside its pixels. Regions of 1 or
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..color import srgb_to_lab
-from ..model import CURVILINEAR, GRADATION
+from ..geometry.patch import patch_pixel_scale
+from ..geometry.regions import region_borders, to_patch_space, to_pixel_space
+from ..model import CURVILINEAR, GRADATION, Features
 
 #: Lab is scaled by this so that L spans 0-255 (the gradient and variance scale).
 LAB_SCALE = 2.55
@@ -97,101 +101,105 @@ LAB_SCALE = 2.55
 _CANNY_INT = 8.0
 #: Pixels per initial superpixel (the paper's N_pixel / 4000).
 CELL_PIXELS = 4000
+#: Gradation features closer than this (pixels) to a curvilinear feature of their region are dropped.
+DEDUP_PX = 0.5
 
 
 @dataclass
-class FeatureSet:
-    """Features in pixel coordinates.
+class FeatureSet(Features):
+    """:class:`tpsv.model.Features` with their pixel positions: the extractor's working form.
+
+    The arrays of :class:`tpsv.model.Features` (``subset`` and ``concat``
+    included) plus ``xy``. ``region`` is the value of the region index map;
+    ``st`` holds the normalised patch parameters ``(S, T)`` where a feature is
+    defined in its patch (lattice gradation features) and NaN where it is
+    defined by ``xy`` (the caller maps it into the patch,
+    :meth:`in_patch_space`).
 
     Attributes
     ----------
     xy : ndarray (F, 2) float64
-        Pixel-space position ``(x, y)``.
-    region : ndarray (F,) int32
-        Region index (value of the index map) the feature belongs to.
-    lab : ndarray (F, 3) float32
-        CIE Lab colour.
-    kind : ndarray (F,) uint8
-        ``GRADATION`` (0) or ``CURVILINEAR`` (1).
-    pair : ndarray (F,) int32
-        Index of the other half of a curvilinear pair, or -1.
-    st : ndarray (F, 2) float64, optional
-        Normalised patch parameters ``(S, T)`` where the feature is defined
-        in its patch (quadtree gradation features), NaN where it is defined
-        by ``xy`` (then ``xy`` is a representative pixel position). None:
-        all features are defined by ``xy``.
+        Pixel-space position ``(x, y)`` (``M(S, T)`` for features defined in
+        the patch).
     """
 
     xy: np.ndarray
-    region: np.ndarray
-    lab: np.ndarray
-    kind: np.ndarray
-    pair: np.ndarray
-    st: np.ndarray | None = None
 
-    def __len__(self) -> int:
-        return int(self.region.shape[0])
+    _COLUMNS: ClassVar[dict] = {**Features._COLUMNS, "xy": (np.float64, (2,))}
 
     @classmethod
-    def empty(cls) -> "FeatureSet":
-        return cls(
-            xy=np.zeros((0, 2), np.float64),
-            region=np.zeros(0, np.int32),
-            lab=np.zeros((0, 3), np.float32),
-            kind=np.zeros(0, np.uint8),
-            pair=np.zeros(0, np.int32),
-        )
+    def at_pixels(cls, xy, region, lab, kind, pair) -> "FeatureSet":
+        """Features defined by their pixel positions (``st`` all NaN)."""
+        return cls(region=region, st=np.full((len(region), 2), np.nan), lab=lab, kind=kind, pair=pair, xy=xy)
 
-    def st_or_nan(self) -> np.ndarray:
-        """``st``, or an all-NaN (F, 2) array when it is None."""
-        if self.st is None:
-            return np.full((len(self), 2), np.nan)
-        return self.st
+    def in_patch_space(self, patches: list) -> Features:
+        """The features with ``(S, T)`` everywhere: those defined by ``xy`` mapped into their patch.
 
-    def subset(self, index: np.ndarray) -> "FeatureSet":
-        """Features at ``index`` (bool mask or integer array, in that order).
+        Parameters
+        ----------
+        patches : list of Patch
+            One per region.
 
-        Pair indices are remapped; a pair whose partner is left out becomes -1.
+        Returns
+        -------
+        Features
         """
-        idx = np.arange(len(self))[index]
-        remap = np.full(len(self) + 1, -1, np.int64)
-        remap[idx] = np.arange(idx.size)
-        pair = self.pair[idx].astype(np.int64)
-        pair = np.where(pair >= 0, remap[pair], -1).astype(np.int32)
-        return FeatureSet(
-            xy=self.xy[idx].astype(np.float64),
-            region=self.region[idx].astype(np.int32),
-            lab=self.lab[idx].astype(np.float32),
-            kind=self.kind[idx].astype(np.uint8),
-            pair=pair,
-            st=None if self.st is None else self.st[idx].astype(np.float64),
-        )
+        st = self.st.copy()
+        todo = np.isnan(st[:, 0])
+        if todo.any():
+            st[todo] = to_patch_space(patches, self.xy[todo], self.region[todo])
+        return Features(region=self.region.astype(np.int32), st=st, lab=self.lab.astype(np.float32),
+                        kind=self.kind.astype(np.uint8), pair=self.pair.astype(np.int32))
 
-    @staticmethod
-    def concat(parts: list["FeatureSet"]) -> "FeatureSet":
-        """Concatenate, shifting pair indices of later parts."""
-        parts = [p for p in parts if len(p)]
-        if not parts:
-            return FeatureSet.empty()
-        pairs, off = [], 0
-        for p in parts:
-            pairs.append(np.where(p.pair >= 0, p.pair + off, -1))
-            off += len(p)
-        any_st = any(p.st is not None for p in parts)
-        return FeatureSet(
-            xy=np.concatenate([p.xy for p in parts]).astype(np.float64),
-            region=np.concatenate([p.region for p in parts]).astype(np.int32),
-            lab=np.concatenate([p.lab for p in parts]).astype(np.float32),
-            kind=np.concatenate([p.kind for p in parts]).astype(np.uint8),
-            pair=np.concatenate(pairs).astype(np.int32),
-            st=np.concatenate([p.st_or_nan() for p in parts]).astype(np.float64) if any_st else None,
-        )
+
+def drop_near(grad: FeatureSet, cur: FeatureSet, radius: float, size: tuple[int, int]) -> FeatureSet:
+    """``grad`` without its features within ``radius`` px of a feature of ``cur`` in the same region.
+
+    A gradation feature that close to a curvilinear one adds a feature and
+    almost no information.
+
+    Parameters
+    ----------
+    grad, cur : FeatureSet
+        Gradation and curvilinear features.
+    radius : float
+        Pixels (0: keep everything).
+    size : (W, H)
+        Image size (regions are kept apart by an offset larger than any
+        distance inside it).
+
+    Returns
+    -------
+    FeatureSet
+    """
+    if not (len(cur) and len(grad) and radius > 0):
+        return grad
+    span = float(size[0] + size[1] + 10)
+    key_c = np.column_stack([cur.xy, cur.region * span])
+    key_g = np.column_stack([grad.xy, grad.region * span])
+    dist, _ = cKDTree(key_c).query(key_g, k=1, distance_upper_bound=radius + 1e-9)
+    return grad.subset(~np.isfinite(dist) | (dist > radius))
 
 
 # --------------------------------------------------------------------------- inputs
 
 
-def _as_rgb(rgb: np.ndarray) -> np.ndarray:
+def as_rgb(rgb: np.ndarray) -> np.ndarray:
+    """An image as float32 RGB in ``[0, 1]`` (uint8 scaled, floats clipped, alpha dropped).
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3 or 4), uint8 or float
+
+    Returns
+    -------
+    ndarray (H, W, 3) float32
+
+    Raises
+    ------
+    ValueError
+        Not an image of at least 3 channels.
+    """
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] < 3:
         raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
@@ -201,7 +209,23 @@ def _as_rgb(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb.astype(np.float32), 0.0, 1.0)
 
 
-def _as_index(index: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+def as_index(index: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    """A region index map checked against the image shape (None: one region).
+
+    Parameters
+    ----------
+    index : ndarray (H, W) int, optional
+    shape : (H, W)
+
+    Returns
+    -------
+    ndarray (H, W) int32
+
+    Raises
+    ------
+    ValueError
+        The shape differs from ``shape`` or a value is negative.
+    """
     if index is None:
         return np.zeros(shape, np.int32)
     index = np.asarray(index)
@@ -362,8 +386,6 @@ class FeatureExtractor:
     min_cell : int
         Cells smaller than this are not split further (the level limit: with
         4000-pixel base cells and ``min_cell = 32``, at most 4 adaptive levels).
-    seed : int
-        Kept for API symmetry; the hierarchy is deterministic.
     """
 
     def __init__(
@@ -375,16 +397,14 @@ class FeatureExtractor:
         step: int = 1,
         thin: int = 2,
         min_cell: int = 32,
-        seed: int = 0,
     ) -> None:
-        self.rgb = _as_rgb(rgb)
+        self.rgb = as_rgb(rgb)
         self.h, self.w = self.rgb.shape[:2]
-        self.index = _as_index(index, (self.h, self.w))
+        self.index = as_index(index, (self.h, self.w))
         self.n_regions = int(self.index.max()) + 1 if self.index.size else 0
         self.step = max(1, int(step))
         self.thin = max(1, int(thin))
         self.min_cell = max(2, int(min_cell))
-        self.seed = int(seed)
         self.lab = srgb_to_lab(self.rgb)
         self.lab255 = self.lab * np.float32(LAB_SCALE)
         self.dx, self.dy, self.mag = lab_gradient(self.lab255, blur_sigma)
@@ -395,14 +415,7 @@ class FeatureExtractor:
         self._order: np.ndarray | None = None
         self._bounds: np.ndarray | None = None
         # Region borders (both sides) and the image frame: always boundary pixels.
-        ix = self.index
-        rb = np.zeros((self.h, self.w), bool)
-        d = ix[:, :-1] != ix[:, 1:]
-        rb[:, :-1] |= d
-        rb[:, 1:] |= d
-        d = ix[:-1, :] != ix[1:, :]
-        rb[:-1, :] |= d
-        rb[1:, :] |= d
+        rb = region_borders(self.index)
         rb[0, :] = rb[-1, :] = True
         rb[:, 0] = rb[:, -1] = True
         self._fixed_boundary = rb
@@ -468,13 +481,7 @@ class FeatureExtractor:
             region[k::2] = ix[cr, cc]
             lab[k::2] = self.lab[cr, cc]
         pair = np.arange(2 * n, dtype=np.int32) ^ 1
-        return FeatureSet(
-            xy=xy,
-            region=region,
-            lab=lab,
-            kind=np.full(2 * n, CURVILINEAR, np.uint8),
-            pair=pair,
-        )
+        return FeatureSet.at_pixels(xy, region, lab, np.full(2 * n, CURVILINEAR, np.uint8), pair)
 
     # --------------------------------------------------------------- gradation
 
@@ -493,29 +500,20 @@ class FeatureExtractor:
             self._hier = self._build_hierarchy()
         return self._hier
 
-    def _cell_stats(self, lbl: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-        cnt = np.bincount(lbl, minlength=n).astype(np.float64)
-        safe = np.maximum(cnt, 1.0)
-        var = np.zeros(n)
-        for c in range(3):
-            v = self._col255[:, c]
-            m = np.bincount(lbl, v, n) / safe
-            var += np.bincount(lbl, v * v, n) / safe - m * m
-        return cnt, np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
-
     def _build_hierarchy(self, max_levels: int = 16, iters: int = 3, compactness: float = 10.0) -> _Hierarchy:
         h, w = self.h, self.w
         yy, xx = np.mgrid[0:h, 0:w]
         px = (xx.ravel() + 0.5).astype(np.float32)
         py = (yy.ravel() + 0.5).astype(np.float32)
         col = self.lab.reshape(-1, 3).astype(np.float32)  # k-means in Lab units
-        self._col255 = self.lab255.reshape(-1, 3).astype(np.float64)
+        col255 = self.lab255.reshape(-1, 3).astype(np.float64)
         lbl = self._base_cells()
         n = int(lbl.max()) + 1 if lbl.size else 1
         labels, sizes, rmss, splits = [], [], [], []
         floor_t = 1.0  # the search never goes below T_super = 1 (see selection)
         for level in range(max_levels + 1):
-            size, rms = self._cell_stats(lbl, n)
+            stats = cell_stats(lbl, n, col255)
+            size, rms = stats["count"], stats["rms"].astype(np.float32)
             can = (size >= self.min_cell) & ((size > 2 * CELL_PIXELS) | (rms > floor_t))
             labels.append(lbl.astype(np.int32))
             sizes.append(size)
@@ -535,7 +533,6 @@ class FeatureExtractor:
             children = np.bincount(np.nonzero(used)[0] // 4, minlength=n)
             splits.append(children >= 2)
             lbl, n = new, nn
-        del self._col255
         assert len(labels) == len(splits)
         return _Hierarchy(labels=labels, size=sizes, rms=rmss, split=splits)
 
@@ -582,10 +579,11 @@ class FeatureExtractor:
 
     def gradation(self, t_super: float) -> FeatureSet:
         """Gradation features for threshold ``t_super``, every region covered."""
-        return FeatureSet.concat(list(self._gradation_parts(t_super)))
+        boundary = self.boundary_features(t_super)
+        return FeatureSet.concat([boundary, self.anchors(boundary)])
 
-    def _gradation_parts(self, t_super: float) -> tuple[FeatureSet, FeatureSet]:
-        """(thinned boundary features, region-coverage anchors)."""
+    def boundary_features(self, t_super: float) -> FeatureSet:
+        """Gradation features on the thinned cell-boundary pixels for ``t_super`` (no anchors)."""
         b = self.boundary(t_super)
         ys, xs = np.nonzero(b)
         th = self.thin
@@ -596,17 +594,31 @@ class FeatureExtractor:
             _, first = np.unique(key, return_index=True)
             first = np.sort(first)
             ys, xs = ys[first], xs[first]
-        fs = FeatureSet(
-            xy=np.stack([xs + 0.5, ys + 0.5], axis=1).astype(np.float64),
-            region=self.index[ys, xs].astype(np.int32),
-            lab=self.lab[ys, xs].astype(np.float32),
-            kind=np.full(ys.size, GRADATION, np.uint8),
-            pair=np.full(ys.size, -1, np.int32),
+        return FeatureSet.at_pixels(
+            np.stack([xs + 0.5, ys + 0.5], axis=1).astype(np.float64),
+            self.index[ys, xs].astype(np.int32),
+            self.lab[ys, xs].astype(np.float32),
+            np.full(ys.size, GRADATION, np.uint8),
+            np.full(ys.size, -1, np.int32),
         )
-        return fs, self._anchors(fs)
 
-    def _anchors(self, fs: FeatureSet) -> FeatureSet:
-        """Extra features for regions without 3 non-collinear ones (see module doc)."""
+    def anchors(self, fs: FeatureSet) -> FeatureSet:
+        """Extra features for the regions that ``fs`` leaves without 3 non-collinear ones.
+
+        See the module doc (the TPS affine part needs 3 non-collinear points
+        per region).
+
+        Parameters
+        ----------
+        fs : FeatureSet
+            The features chosen so far (all kinds).
+
+        Returns
+        -------
+        FeatureSet
+            Gradation features at pixels of the regions in need, none at a
+            position ``fs`` already has.
+        """
         R = self.n_regions
         if R == 0:
             return FeatureSet.empty()
@@ -670,17 +682,17 @@ class FeatureExtractor:
         a = np.array(pts, np.float64)
         rr = a[:, 2].astype(np.int64)
         cc = a[:, 3].astype(np.int64)
-        return FeatureSet(
-            xy=a[:, :2].copy(),
-            region=a[:, 4].astype(np.int32),
-            lab=self.lab[rr, cc].astype(np.float32),
-            kind=np.full(len(pts), GRADATION, np.uint8),
-            pair=np.full(len(pts), -1, np.int32),
+        return FeatureSet.at_pixels(
+            a[:, :2].copy(),
+            a[:, 4].astype(np.int32),
+            self.lab[rr, cc].astype(np.float32),
+            np.full(len(pts), GRADATION, np.uint8),
+            np.full(len(pts), -1, np.int32),
         )
 
     # ------------------------------------------------------------------ merged
 
-    def extract(self, t_canny: float, t_super: float, dedup: float = 0.5) -> FeatureSet:
+    def extract(self, t_canny: float, t_super: float, dedup: float = DEDUP_PX) -> FeatureSet:
         """Curvilinear pairs + gradation features, merged and sorted by region.
 
         A gradation feature within ``dedup`` pixels of a curvilinear feature of
@@ -689,15 +701,9 @@ class FeatureExtractor:
         region), pair indices remapped.
         """
         cur = self.curvilinear(t_canny)
-        grad, anchors = self._gradation_parts(t_super)
-        if len(cur) and len(grad) and dedup > 0:
-            from scipy.spatial import cKDTree
-
-            span = float(self.w + self.h + 10)
-            key_c = np.column_stack([cur.xy, cur.region * span])
-            key_g = np.column_stack([grad.xy, grad.region * span])
-            dist, _ = cKDTree(key_c).query(key_g, k=1, distance_upper_bound=dedup + 1e-9)
-            grad = grad.subset(~np.isfinite(dist) | (dist > dedup))
+        grad = self.boundary_features(t_super)
+        anchors = self.anchors(grad)
+        grad = drop_near(grad, cur, dedup, (self.w, self.h))
         allf = FeatureSet.concat([cur, grad, anchors])
         order = np.argsort(allf.region, kind="stable")
         return allf.subset(order)
@@ -718,7 +724,7 @@ class LatticeGradation:
     (module doc, and docs/DESIGN.md "Compression" for the measurements that
     led here). Each region's parameter square is cut into ``nx x ny`` equal
     cells about ``d`` pixels wide (``nx = max(1, round(sx / d))`` with ``sx``
-    the patch's pixel scale, ``tpsv.tps.group.patch_pixel_scale``); each cell
+    the patch's pixel scale, ``tpsv.geometry.patch.patch_pixel_scale``); each cell
     holding a pixel of the region gives one feature at its centre with the
     mean colour of its pixels. The spacing adapts per region to ``T_super``:
     ``d`` is the largest of :data:`LATTICE_PX` at which the cells' RMS colour
@@ -762,8 +768,6 @@ class LatticeGradation:
         spacings: tuple = LATTICE_PX,
         edge_px: float = EDGE_PX,
     ) -> None:
-        from ..tps.group import patch_pixel_scale
-
         self.h, self.w = index.shape
         self.patches = list(patches)
         R = len(self.patches)
@@ -790,7 +794,7 @@ class LatticeGradation:
         nr = n[self.reg]
         ij = np.minimum((self.S * nr).astype(np.int64), nr - 1)
         cell = off[self.reg] + ij[:, 1] * nr[:, 0] + ij[:, 0]
-        stats = _cell_stats(cell, int(off[-1]), self.col)
+        stats = cell_stats(cell, int(off[-1]), self.col, LAB_SCALE**2)
         used = stats["count"] > 0
         r_of = np.repeat(np.arange(R), n[:, 0] * n[:, 1])
         k = np.arange(off[-1]) - off[r_of]
@@ -816,7 +820,7 @@ class LatticeGradation:
     def features(self, t_super: float, edge_pixels: np.ndarray | None = None) -> FeatureSet:
         """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided."""
         st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels))
-        xy = self._positions(st, reg)
+        xy = to_pixel_space(self.patches, reg, st)  # for de-duplication and anchors
         n = reg.size
         return FeatureSet(
             xy=xy, region=reg.astype(np.int32), lab=lab.astype(np.float32), kind=np.full(n, GRADATION, np.uint8),
@@ -850,29 +854,34 @@ class LatticeGradation:
         ij = np.minimum((self.S[sel] * n).astype(np.int64), n - 1)
         key = (reg * (int(n[:, 1].max()) + 1) + ij[:, 1]) * (int(n[:, 0].max()) + 1) + ij[:, 0]
         u, first, inv = np.unique(key, return_index=True, return_inverse=True)
-        stats = _cell_stats(inv.ravel(), u.size, self.col[sel])
+        stats = cell_stats(inv.ravel(), u.size, self.col[sel], LAB_SCALE**2)
         r = reg[first]
         nn = n[first].astype(np.float64)
         st = np.column_stack([(ij[first, 0] + 0.5) / nn[:, 0], (ij[first, 1] + 0.5) / nn[:, 1]])
         return st, r, stats["lab"]
 
-    def _positions(self, st: np.ndarray, reg: np.ndarray) -> np.ndarray:
-        """Pixel positions ``M(S, T)`` of patch points (for de-duplication and anchors)."""
-        from ..geometry import patch as _patch
 
-        xy = np.zeros((reg.size, 2))
-        order = np.argsort(reg, kind="stable")
-        bounds = np.searchsorted(reg[order], np.arange(len(self.patches) + 1))
-        for r, p in enumerate(self.patches):
-            idx = order[bounds[r]:bounds[r + 1]]
-            if idx.size:
-                M, N = p.shape
-                xy[idx] = _patch.forward(p, st[idx, 0] * (M - 1), st[idx, 1] * (N - 1))
-        return xy
+def cell_stats(cell: np.ndarray, n: int, col: np.ndarray, var_scale: float = 1.0) -> dict:
+    """Pixel count, mean colour and RMS colour deviation per cell id ``0..n-1``.
 
+    Parameters
+    ----------
+    cell : ndarray (P,) int
+        Cell id of every pixel.
+    n : int
+        Number of cells.
+    col : ndarray (P, 3) float64
+        Colour of every pixel.
+    var_scale : float
+        Factor of the variance (``LAB_SCALE ** 2`` turns Lab colours into the
+        ``2.55 * Lab`` units of ``T_super``).
 
-def _cell_stats(cell: np.ndarray, n: int, col: np.ndarray) -> dict:
-    """Pixel count, mean Lab and RMS deviation (``2.55 * Lab`` units) per cell id ``0..n-1``."""
+    Returns
+    -------
+    dict
+        ``count`` (n,), ``lab`` (n, 3) mean colour (``col``'s units), ``rms``
+        (n,) ``sqrt(var_scale * trace(cov))``; all float64, 0 for empty cells.
+    """
     cnt = np.bincount(cell, minlength=n).astype(np.float64)
     safe = np.maximum(cnt, 1.0)
     lab = np.zeros((n, 3))
@@ -881,7 +890,7 @@ def _cell_stats(cell: np.ndarray, n: int, col: np.ndarray) -> dict:
         v = col[:, c]
         m = np.bincount(cell, v, n) / safe
         lab[:, c] = m
-        var += (np.bincount(cell, v * v, n) / safe - m * m) * LAB_SCALE**2
+        var += (np.bincount(cell, v * v, n) / safe - m * m) * var_scale
     return dict(count=cnt, lab=lab, rms=np.sqrt(np.maximum(var, 0.0)))
 
 
@@ -915,7 +924,7 @@ def curvilinear_features(
 
 
 def gradation_features(
-    rgb: np.ndarray, index: np.ndarray | None, t_super: float, seed: int = 0, thin: int = 2
+    rgb: np.ndarray, index: np.ndarray | None, t_super: float, thin: int = 2
 ) -> FeatureSet:
     """Gradation features from adaptive superpixels (see module doc).
 
@@ -925,14 +934,14 @@ def gradation_features(
         Cell colour-deviation threshold (RMS of ``2.55 * Lab`` about the cell
         mean): cells above it are split further.
     """
-    return FeatureExtractor(rgb, index, thin=thin, seed=seed).gradation(t_super)
+    return FeatureExtractor(rgb, index, thin=thin).gradation(t_super)
 
 
 def extract_features(
-    rgb: np.ndarray, index: np.ndarray | None, t_canny: float, t_super: float, seed: int = 0
+    rgb: np.ndarray, index: np.ndarray | None, t_canny: float, t_super: float
 ) -> FeatureSet:
     """Both kinds, merged, de-duplicated and sorted by region.
 
     For repeated calls on one image use :class:`FeatureExtractor`.
     """
-    return FeatureExtractor(rgb, index, seed=seed).extract(t_canny, t_super)
+    return FeatureExtractor(rgb, index).extract(t_canny, t_super)

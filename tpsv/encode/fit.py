@@ -2,7 +2,7 @@
 
 A render at scale 1 is, per Lab channel, ``img(x) = sum_k beta_k(x) f_k(x)``
 where ``f_k`` is kernel ``k``'s TPS through its features' colours and
-``beta_k`` the blend weights (``tpsv.tps.group``). A TPS is linear in the values it
+``beta_k`` the blend weights (``tpsv.tps.blend``). A TPS is linear in the values it
 interpolates: ``f_k(x) = b_k(x)^T Z_k h_k`` with ``b_k(x) = [phi(|x - p_i|)
 ..., 1, u, v]`` in the kernel's local frame and ``Z_k = M_k^{-1} [I; 0]`` the
 first ``K`` columns of the inverse of the kernel's symmetric system of Eq. (4)
@@ -15,7 +15,7 @@ What is minimised (one Gauss-Newton step on the sRGB error)
 The error the user sees is in 8-bit sRGB while the model is in Lab, so the
 residual of pixel ``x`` is linearised at the image colour: ``J_x (A_x h -
 lab_x)`` with ``J_x`` the 3 x 3 Jacobian of Lab -> sRGB at ``lab_x``
-(:func:`lab_to_srgb_jacobian`, analytic). The fit minimises ``sum_x |J_x
+(:func:`tpsv.color.lab_to_srgb_jacobian`, analytic). The fit minimises ``sum_x |J_x
 (A_x h - lab_x)|^2 + mu |h - h0|^2`` (``h0`` the starting colours; the small
 ``mu`` keeps features that no pixel sees where they are) by conjugate
 gradients with a Jacobi preconditioner, started at ``h0``. The result is
@@ -54,12 +54,14 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..tps import group as tps
-from ..color import srgb_to_lab
+from .. import tps
+from ..color import lab_to_srgb_jacobian, srgb_to_lab
+from ..render.pixelmap import pixel_map
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -83,35 +85,23 @@ class FitReport:
 
 
 def pixel_maps(model, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
-    """Region index (H, W) int32 and ``(S, T)`` (H, W, 2) float32 of every pixel at scale 1, as rendered."""
-    from ..geometry import outline
-    from ..gpu.patchmap import inverse_map_numpy
+    """The pixel maps at scale 1, as rendered (:func:`tpsv.render.pixelmap.pixel_map`, draw order included).
 
-    index = outline.rasterize_regions(model.regions, model.width, model.height, src_size=(model.width, model.height))
-    st = inverse_map_numpy([r.patch for r in model.regions], index, (model.width, model.height), device=device)
-    return index.astype(np.int32), st.astype(np.float32)
+    Parameters
+    ----------
+    model : Model
+    device : str
+        Warp device for the inverse patch map.
 
-
-def lab_to_srgb_jacobian(lab: np.ndarray) -> np.ndarray:
-    """``d sRGB / d Lab`` (n, 3, 3) of ``tpsv.color.lab_to_srgb`` (0 where sRGB clips)."""
-    from ..color import _WHITE, _XYZ2RGB
-
-    lab = np.asarray(lab, np.float64).reshape(-1, 3)
-    fy = (lab[:, 0] + 16.0) / 116.0
-    f = np.stack([fy + lab[:, 1] / 500.0, fy, fy - lab[:, 2] / 200.0], 1)
-    cube = f > 0.206893
-    xyz = np.where(cube, f**3, (f - 16.0 / 116.0) / 7.787) * _WHITE
-    dxyz_df = np.where(cube, 3.0 * f * f, 1.0 / 7.787) * _WHITE  # (n, 3)
-    # df / dLab: rows fx, fy, fz; columns L, a, b
-    df = np.array([[1 / 116.0, 1 / 500.0, 0.0], [1 / 116.0, 0.0, 0.0], [1 / 116.0, 0.0, -1 / 200.0]])
-    lin = xyz @ _XYZ2RGB.T
-    c = np.maximum(lin, 0.0)
-    srgb = np.where(c > 0.0031308, 1.055 * np.power(np.maximum(c, 1e-12), 1.0 / 2.4) - 0.055, 12.92 * c)
-    dg = np.where(c > 0.0031308, 1.055 / 2.4 * np.power(np.maximum(c, 1e-12), 1.0 / 2.4 - 1.0), 12.92)
-    dg = np.where((lin < 0.0) | (srgb > 1.0), 0.0, dg)
-    # J = diag(dg) XYZ2RGB diag(dxyz_df) df
-    J = np.einsum("ni,ij,nj,jk->nik", dg, _XYZ2RGB, dxyz_df, df)
-    return J
+    Returns
+    -------
+    index : ndarray (H, W) int32
+        Region of every pixel.
+    st : ndarray (H, W, 2) float32
+        ``(S, T)`` of every pixel in its region's patch.
+    """
+    pm = pixel_map(model, device=device)
+    return pm.index, pm.st
 
 
 @dataclass
@@ -212,9 +202,7 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
     Z = np.zeros((n, K + 3, K))
     if n == 0:
         return P, Z
-    from ..gpu.tps import kernel_lambda
-
-    lam = kernel_lambda(ks)
+    lam = tps.kernel_lambda(ks)
     ok = ~ks.degenerate
     if ok.any():
         sel = np.nonzero(ok)[0]
@@ -225,7 +213,7 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
 
         _pool_map(work, chunks)
     for k in np.nonzero(~ok)[0]:
-        # affine fallback of tpsv.gpu.tps._finish: linear along anchors 0 -> 1, constant across
+        # affine fallback of tpsv.gpu.solve._affine_fallback: linear along anchors 0 -> 1, constant across
         m = int(ks.count[k])
         if m == 0:
             continue
@@ -281,8 +269,6 @@ def _pool_map(fn, items):
     items = list(items)
     if len(items) > 1 and _threads() > 1:
         if _POOL is None:
-            from concurrent.futures import ThreadPoolExecutor
-
             _POOL = ThreadPoolExecutor(max_workers=_threads(), thread_name_prefix="tpsv-fit")
         return list(_POOL.map(fn, items))
     return [fn(x) for x in items]
@@ -468,46 +454,89 @@ def fit_colors(
         return model, FitReport(0, 0.0, 0, 0.0, 0.0, 1, float("nan"), None)
     ks = kernels if kernels is not None else tps.group_kernels(model)
     if target is None:
-        index, st = maps if maps is not None else pixel_maps(model, device)
-        per_px = (1.0 + 2.0 * ks.overlap) ** 2 * ks.kernel_size
-        sub = 1
-        while (model.height // sub) * (model.width // sub) * per_px > max_nnz:
-            sub += 1
-        target = fit_target(rgb, index, st, sub)
-    inside = ks.grid[np.maximum(target.region, 0), 0] > 0
-    sel = np.nonzero(inside)[0]
+        target = _target_for(model, rgb, ks, device, maps, max_nnz)
+    # pixels of regions without kernels are left out (the fill colour is no feature's)
+    sel = np.nonzero(ks.grid[np.maximum(target.region, 0), 0] > 0)[0]
     des, nnz = build_design(ks, target.region[sel], target.st[sel])
-    W = target.W[sel]
     lab_t = target.lab[sel]
-
     h0 = ks.lab.astype(np.float64).copy()
+    normal = _Normal(des, target.W[sel], float(mu) * max(des.n_pix, 1) / max(F, 1))
+    freg = np.asarray(model.features.region, np.int64)
+    X, it, res0, res1 = _region_cg(normal, normal.rhs(lab_t, h0), normal.jacobi(), h0, freg, iterations, tol)
     used = np.zeros(F, bool)
     used[ks.index[ks.index >= 0]] = True
-    mu_eff = float(mu) * max(des.n_pix, 1) / max(F, 1)
+    X[~used] = h0[~used]
+    X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
+    X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
+    res = des.forward(X) - lab_t
+    mse = float((res * normal.wmul(res)).sum() / (3.0 * max(res.shape[0], 1)))
+    # features the grouping merged away (duplicates) take their representative's colour
+    lab = tps.Duplicates.of_features(model.features).spread(X.astype(np.float32))
+    out = replace(model, features=replace(model.features, lab=lab))
+    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, target.sub, mse, ks)
 
-    def wmul(Y):
+
+def _target_for(model, rgb: np.ndarray, ks: tps.KernelSet, device: str, maps, max_nnz: int) -> FitTarget:
+    """The :class:`FitTarget` of ``rgb``: every pixel, or every ``sub``-th where ``A`` would pass ``max_nnz``."""
+    index, st = maps if maps is not None else pixel_maps(model, device)
+    per_px = (1.0 + 2.0 * ks.overlap) ** 2 * ks.kernel_size
+    sub = 1
+    while (model.height // sub) * (model.width // sub) * per_px > max_nnz:
+        sub += 1
+    return fit_target(rgb, index, st, sub)
+
+
+@dataclass
+class _Normal:
+    """The fit's normal equations ``(A^T W A + mu I) h = A^T W lab + mu h0`` (``W``: per-pixel 3 x 3)."""
+
+    des: Design
+    W: np.ndarray  # (n, 3, 3) J^T J per fitted pixel
+    mu: float
+
+    def wmul(self, Y: np.ndarray) -> np.ndarray:
+        """``W Y`` per pixel for Y (n, 3)."""
+        W = self.W
         return W[:, :, 0] * Y[:, 0:1] + W[:, :, 1] * Y[:, 1:2] + W[:, :, 2] * Y[:, 2:3]
 
-    def normal(X):
-        return des.adjoint(wmul(des.forward(X))) + mu_eff * X
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.des.adjoint(self.wmul(self.des.forward(X))) + self.mu * X
 
-    rhs = des.adjoint(wmul(lab_t)) + mu_eff * h0
-    # Jacobi preconditioner: diag of A^T W A, ignoring overlaps of duplicate columns
-    Wd = np.ascontiguousarray(W[:, [0, 1, 2], [0, 1, 2]], np.float32)
-    diag = des.column_sq(Wd) + mu_eff
-    Minv = 1.0 / np.maximum(diag, 1e-12)
+    def rhs(self, lab: np.ndarray, h0: np.ndarray) -> np.ndarray:
+        """``A^T W lab + mu h0``."""
+        return self.des.adjoint(self.wmul(lab)) + self.mu * h0
 
-    # Conjugate gradients run per region: A has no entry linking a pixel to
-    # another region's features, so the normal matrix is block diagonal and
-    # per-region step lengths keep every region's iterates independent of the
-    # others' (a feature's fitted colour never depends on another region).
-    freg = np.asarray(model.features.region, np.int64)
-    R_n = int(freg.max()) + 1 if F else 0
+    def jacobi(self) -> np.ndarray:
+        """Inverse diagonal of the normal matrix (overlaps of duplicate columns ignored)."""
+        Wd = np.ascontiguousarray(self.W[:, [0, 1, 2], [0, 1, 2]], np.float32)
+        diag = self.des.column_sq(Wd) + self.mu
+        return 1.0 / np.maximum(diag, 1e-12)
+
+
+def _region_cg(normal, rhs: np.ndarray, Minv: np.ndarray, x0: np.ndarray, region: np.ndarray,
+               iterations: int, tol: float) -> tuple[np.ndarray, int, float, float]:
+    """Jacobi-preconditioned conjugate gradients with step lengths per region.
+
+    ``A`` has no entry linking a pixel to another region's features, so the
+    normal matrix is block diagonal and per-region step lengths keep every
+    region's iterates independent of the others' (a feature's fitted colour
+    never depends on another region). A region stops when its preconditioned
+    residual falls below ``tol`` times its start.
+
+    Returns
+    -------
+    X : ndarray (F, 3)
+    iterations : int
+        Iterations run.
+    res0, res : float
+        Preconditioned residual norm at the start and at the end.
+    """
+    R_n = int(region.max()) + 1 if region.size else 0
 
     def rdot(a, b):
-        return np.bincount(freg, (a * b).sum(axis=1), R_n)
+        return np.bincount(region, (a * b).sum(axis=1), R_n)
 
-    X = h0.copy()
+    X = x0.copy()
     R = rhs - normal(X)
     Zr = Minv * R
     Pd = Zr.copy()
@@ -524,69 +553,12 @@ def fit_colors(
         pq = rdot(Pd, Q)
         active &= pq > 0
         alpha = np.where(active, rz / np.where(active, pq, 1.0), 0.0)
-        X += alpha[freg][:, None] * Pd
-        R -= alpha[freg][:, None] * Q
+        X += alpha[region][:, None] * Pd
+        R -= alpha[region][:, None] * Q
         Zr = Minv * R
         rz_new = rdot(R, Zr)
         beta = np.where(active, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
         active &= rz_new > (tol**2) * rz0
-        Pd = Zr + beta[freg][:, None] * Pd
+        Pd = Zr + beta[region][:, None] * Pd
         rz = np.where(active, rz_new, rz)
-    rz = float(np.sum(rz))
-    X[~used] = h0[~used]
-    X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
-    X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
-    res = des.forward(X) - lab_t
-    mse = float((res * wmul(res)).sum() / (3.0 * max(res.shape[0], 1)))
-    lab = _spread_merged(model, ks, X.astype(np.float32))
-    out = replace(model, features=replace(model.features, lab=lab))
-    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, float(np.sqrt(max(rz, 0.0))), target.sub, mse, ks)
-
-
-def recolor_kernels(ks: tps.KernelSet, model) -> tps.KernelSet:
-    """``ks`` (grouped from a model with the same features' positions) with ``model``'s colours.
-
-    Equal to ``tps.group_kernels(model)`` when ``model`` has the positions, regions
-    and parameters ``ks`` was grouped from (the grouping depends on nothing else):
-    duplicates' representatives take their group's mean colour, as there.
-    """
-    f = model.features
-    F = len(f)
-    lab = np.asarray(f.lab, np.float32).reshape(F, 3).copy()
-    reg = np.asarray(f.region, np.int64)
-    st = np.asarray(f.st, np.float64).reshape(F, 2)
-    keep = np.ones(F, bool)
-    if F > 1:
-        o = np.lexsort((st[:, 1], st[:, 0], reg))
-        a, b = o[1:], o[:-1]
-        same = (reg[a] == reg[b]) & (st[a, 0] == st[b, 0]) & (st[a, 1] == st[b, 1])
-        if same.any():
-            gid = np.concatenate([[0], np.cumsum(~same)])
-            first = o[np.concatenate([[True], ~same])]
-            cnt = np.bincount(gid)[:, None]
-            lab_sum = np.zeros((first.size, 3))
-            np.add.at(lab_sum, gid, lab[o].astype(np.float64))
-            lab[first] = (lab_sum / cnt).astype(np.float32)
-            keep[:] = False
-            keep[first] = True
-    fill_lab = lab[keep].astype(np.float64).mean(0) if F else np.array([50.0, 0.0, 0.0])
-    fill = np.broadcast_to(fill_lab.astype(np.float32), ks.fill.shape).copy()
-    return replace(ks, lab=lab, fill=fill)
-
-
-def _spread_merged(model, ks, lab: np.ndarray) -> np.ndarray:
-    """Give features that the grouping merged away their representative's fitted colour."""
-    f = model.features
-    F = len(f)
-    used = np.zeros(F, bool)
-    used[ks.index[ks.index >= 0]] = True
-    if used.all():
-        return lab
-    key = np.column_stack([f.region.astype(np.float64), f.st])
-    o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-    same = np.concatenate([[False], (np.diff(key[o], axis=0) == 0).all(1)])
-    gid = np.cumsum(~same) - 1
-    rep = o[~same]
-    lab = lab.copy()
-    lab[o] = lab[rep[gid]]
-    return lab
+    return X, it, res0, float(np.sqrt(max(float(np.sum(rz)), 0.0)))

@@ -57,9 +57,12 @@ from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
 
 import numpy as np
+from scipy.ndimage import binary_dilation
 
-from .features import LAB_SCALE, _as_index, _as_rgb, lab_gradient
+from .. import metrics
 from ..color import srgb_to_lab
+from ..geometry.regions import region_borders
+from .features import LAB_SCALE, as_index, as_rgb, lab_gradient
 
 #: Paper constants of VI-A.
 C_CANNY = 30.0
@@ -73,7 +76,7 @@ FLAT = 0.5
 
 def gradient_magnitude(rgb: np.ndarray, blur_sigma: float = 0.0) -> np.ndarray:
     """Gradient magnitude (HxW float32) as thresholded by the Canny detector."""
-    lab255 = srgb_to_lab(_as_rgb(rgb)) * np.float32(LAB_SCALE)
+    lab255 = srgb_to_lab(as_rgb(rgb)) * np.float32(LAB_SCALE)
     return lab_gradient(lab255, blur_sigma)[2]
 
 
@@ -98,23 +101,14 @@ def gradient_stats(
         On the ``cv2.Canny`` threshold scale (see module doc); ``(0, 0)`` when
         the image has no non-flat pixel.
     """
-    rgb = _as_rgb(rgb)
+    rgb = as_rgb(rgb)
     mag = gradient_magnitude(rgb)
     keep = mag >= FLAT
     if index is not None:
-        ix = _as_index(index, rgb.shape[:2])
+        ix = as_index(index, rgb.shape[:2])
     if index is not None and exclude_borders:
-        border = np.zeros(ix.shape, bool)
-        d = ix[:, :-1] != ix[:, 1:]
-        border[:, :-1] |= d
-        border[:, 1:] |= d
-        d = ix[:-1, :] != ix[1:, :]
-        border[:-1, :] |= d
-        border[1:, :] |= d
         # 3x3 neighbourhood crosses a border <=> within one pixel (8-connected) of one.
-        from scipy.ndimage import binary_dilation
-
-        border = binary_dilation(border, structure=np.ones((3, 3), bool))
+        border = binary_dilation(region_borders(ix), structure=np.ones((3, 3), bool))
         if (keep & ~border).any():
             keep &= ~border
     vals = mag[keep].astype(np.float64)
@@ -146,18 +140,23 @@ def initial_thresholds(
 
 
 def efficiency(mse: float, file_bytes: int, width: int, height: int) -> float:
-    """The paper's ``w = 1 / (E C)``.
+    """The paper's ``w = 1 / (E C)`` (:func:`tpsv.metrics.efficiency`), arguments checked.
 
     ``E`` is the MSE of RGB in [0, 1] over the whole image and ``C = file_bytes
     / (W H 3)``. ``inf`` when ``E`` or ``C`` is 0.
+
+    Raises
+    ------
+    ValueError
+        A size that is not positive, or a negative error or file size.
     """
     if width <= 0 or height <= 0:
         raise ValueError("image size must be positive")
     if mse < 0 or file_bytes < 0:
         raise ValueError("mse and file size must be non-negative")
-    c = file_bytes / (width * height * 3.0)
-    ec = float(mse) * c
-    return float("inf") if ec == 0 else 1.0 / ec
+    if file_bytes == 0:
+        return float("inf")
+    return metrics.efficiency(float(mse), file_bytes, width, height)
 
 
 class Trial(NamedTuple):
@@ -205,6 +204,23 @@ def _as_w(out) -> tuple[float, float, float]:
         return e, c, (float("inf") if ec == 0 else 1.0 / ec)
     w = float(out)
     return float("nan"), float("nan"), w
+
+
+def _mutate(rng, best: Trial, min_width: tuple[float, float], clamp, seen, redraws: int) -> tuple[float, float] | None:
+    """A candidate ``T_best + Delta``, ``Delta ~ U(-w, w)`` per coordinate with ``w = max(|T_best|, min_width)``.
+
+    Clamped and rounded by ``clamp``; redrawn (at most ``redraws`` times)
+    while it lands on a pair in ``seen``; None when every draw did.
+    """
+    for _try in range(redraws + 1):
+        wc = max(abs(best.t_canny), float(min_width[0]))
+        ws = max(abs(best.t_super), float(min_width[1]))
+        dc = rng.uniform(-wc, wc)
+        ds = rng.uniform(-ws, ws)
+        key = clamp(best.t_canny + dc, best.t_super + ds)
+        if key not in seen:
+            return key
+    return None
 
 
 def monte_carlo_search(
@@ -275,16 +291,7 @@ def monte_carlo_search(
         tc, ts = clamp(*t0)
         return SearchResult(tc, ts, float("nan"), [], 0)
     for _ in range(iterations - 1):
-        cand = None
-        for _try in range(redraws + 1):
-            wc = max(abs(best.t_canny), float(min_width[0]))
-            ws = max(abs(best.t_super), float(min_width[1]))
-            dc = rng.uniform(-wc, wc)
-            ds = rng.uniform(-ws, ws)
-            key = clamp(best.t_canny + dc, best.t_super + ds)
-            if key not in cache:
-                cand = key
-                break
+        cand = _mutate(rng, best, min_width, clamp, cache, redraws)
         if cand is None:
             continue
         trial = run(*cand)

@@ -1,6 +1,21 @@
 """Image (+ label map) -> hybrid vector image.
 
-image -> labels -> regions (outline + Hermite patch) -> features -> Model.
+Stages
+------
+:func:`vectorize` runs these in order; each is a function of its own:
+
+1. :func:`label_map`: the label map (segmented automatically when absent);
+2. :func:`build_geometry`: regions (outline + Hermite patch) and the pixel
+   maps at scale 1, as a :class:`Geometry` (threshold-independent, computed once);
+3. :func:`start_thresholds`: ``(T0_canny, T0_super)`` of paper VI-A;
+4. :meth:`Candidates.model` (:func:`make_model`): the features of one pair of
+   thresholds, in the patches' ``(S, T)``;
+5. :meth:`Candidates.fitted_colours`: their colours fitted to the image;
+6. :meth:`Candidates.evaluate`: encoded, decoded and rendered as a user of
+   the file sees it (an :class:`Evaluation`);
+7. :func:`search_thresholds`: the Monte Carlo search over stages 4-6;
+8. :func:`finish`: the best thresholds fitted on every pixel, compared with
+   the start, and the colour quantisation steps chosen.
 
 Schemes
 -------
@@ -61,17 +76,23 @@ lattice fit misjudged the start by more than ``START_MARGIN``.
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from .. import codec, metrics
-from ..geometry import outline, patch, segment
+from .. import codec, metrics, tps
 from ..errors import TpsvError
-from .features import FeatureExtractor, FeatureSet, LatticeGradation
+from ..geometry import segment
+from ..geometry.regions import build_regions
 from ..model import Features, Model, Params, Region
+from ..render.pixelmap import PixelMap
+from ..render.raster import render, shade
+from . import search as selection
+from .features import DEDUP_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
+from .fit import fit_colors, fit_target
 
 #: Feature schemes (see the module doc).
 SCHEMES = ("tpsv", "paper")
@@ -84,14 +105,14 @@ SEARCH_FIT_SUB = 2
 SEARCH_FIT_ITERATIONS = 2
 FINAL_FIT_ITERATIONS = 10
 #: The start is fitted on every pixel too unless the search found it this many
-#: times less efficient than its best (see ``vectorize``).
+#: times less efficient than its best (see :func:`finish`).
 START_MARGIN = 1.5
 #: Colour quantisation steps (l_step, ab_step) the "tpsv" scheme chooses from
 #: after the search, by the same efficiency w.
 STEP_CHOICES = ((2, 4), (4, 8), (8, 8), (8, 16), (12, 16), (16, 16))
-#: Params of each scheme that differ from the Params defaults (the paper's).
+#: Params of each scheme that differ from the Params defaults (the "tpsv" scheme's).
 SCHEME_PARAMS = {
-    "tpsv": dict(kernel_size=32, overlap=0.25, st_steps=2, l_step=8, ab_step=8),
+    "tpsv": {},
     "paper": dict(kernel_size=64, overlap=0.5, st_steps=16, l_step=1, ab_step=1),
 }
 
@@ -140,12 +161,20 @@ class Geometry:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def pixel_st(self, device: str = "cpu") -> np.ndarray:
-        """``(S, T)`` of every pixel at scale 1 (cached)."""
-        if self.st is None:
-            from ..gpu.patchmap import inverse_map_numpy
+        """``(S, T)`` of every pixel at scale 1, as the renderer computes it (cached).
 
+        Parameters
+        ----------
+        device : str
+            Warp device for the inverse patch map (first call only).
+
+        Returns
+        -------
+        ndarray (H, W, 2) float32
+        """
+        if self.st is None:
             h, w = self.index.shape
-            self.st = inverse_map_numpy([r.patch for r in self.regions], self.index, (w, h), device=device)
+            self.st = PixelMap.build(self.regions, self.index, (w, h), device).st
         return self.st
 
     def _cached(self, kind: str, image: np.ndarray, extra: tuple, make):
@@ -158,8 +187,6 @@ class Geometry:
 
     def fit_target(self, rgb: np.ndarray, sub: int = 1):
         """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
-        from .fit import fit_target
-
         return self._cached("fit", rgb, (int(sub),), lambda: fit_target(rgb, self.index, self.pixel_st(), sub))
 
     def lattice(self, lab: np.ndarray) -> LatticeGradation:
@@ -182,11 +209,50 @@ class VectorizeResult:
     history: list = field(default_factory=list)
 
 
-def build_geometry(labels: np.ndarray) -> Geometry:
-    """Regions with outlines and patches from a label map.
+class Evaluation(NamedTuple):
+    """A model as a user of its file sees it: the file, the decoded model, the MSE of its render at scale 1."""
 
-    Disconnected labels become several regions (each keeps its label value);
-    nothing is merged away, so a single-pixel region stays a region.
+    data: bytes
+    model: Model
+    mse: float
+
+    def efficiency(self) -> float:
+        """The paper's ``w = 1 / (E C)`` of this file and error."""
+        return metrics.efficiency(self.mse, len(self.data), self.model.width, self.model.height)
+
+
+# ----------------------------------------------------------------------------- stages
+
+
+def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0) -> np.ndarray:
+    """Stage 1: the label map, segmented automatically when absent.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    labels : ndarray (H, W) int, optional
+    seed : int
+        Seed of the automatic segmentation.
+
+    Returns
+    -------
+    ndarray (H, W) int
+
+    Raises
+    ------
+    TpsvError
+        ``labels`` is not the image's size.
+    """
+    h, w = rgb.shape[:2]
+    if labels is None:
+        return segment.segment_auto(rgb, seed=seed)
+    if labels.shape != (h, w):
+        raise TpsvError(f"label map is {labels.shape[1]}x{labels.shape[0]} but the image is {w}x{h}")
+    return labels
+
+
+def build_geometry(labels: np.ndarray) -> Geometry:
+    """Stage 2: regions with outlines and patches from a label map (:func:`tpsv.geometry.regions.build_regions`).
 
     Parameters
     ----------
@@ -197,38 +263,28 @@ def build_geometry(labels: np.ndarray) -> Geometry:
     -------
     Geometry
     """
-    from scipy import ndimage
-
-    h, w = labels.shape
-    comp = segment.split_connected(labels, min_size=1)
-    n = int(comp.max()) + 1
-    regions: list[Region] = []
-    slices = ndimage.find_objects(comp + 1, max_label=n)
-    for i in range(n):
-        sl = slices[i]
-        if sl is None:
-            continue
-        mask = comp == i
-        label = int(np.bincount(labels[sl][mask[sl]].ravel()).argmax())
-        polys = outline.trace_outline(mask)
-        regions.append(Region(label=label, outline=polys, patch=patch.build_patch(mask, polys)))
-    if not regions:
-        raise TpsvError("label map has no regions")
-    index = outline.rasterize_regions(regions, w, h, src_size=(w, h))
+    regions, index = build_regions(labels)
     return Geometry(regions=regions, index=index)
 
 
-def to_patch_space(geometry: Geometry, xy: np.ndarray, region: np.ndarray) -> np.ndarray:
-    """Normalised (S, T) of pixel-space points, each in the patch of its region."""
-    st = np.zeros((xy.shape[0], 2), np.float64)
-    order = np.argsort(region, kind="stable")
-    bounds = np.searchsorted(region[order], np.arange(len(geometry.regions) + 1))
-    for r, reg in enumerate(geometry.regions):
-        idx = order[bounds[r] : bounds[r + 1]]
-        if idx.size:
-            raw = patch.inverse(reg.patch, xy[idx])
-            st[idx] = np.clip(patch.normalize(reg.patch, raw), 0.0, 1.0)
-    return st
+def start_thresholds(
+    rgb: np.ndarray, geometry: Geometry, t_canny: float | None = None, t_super: float | None = None
+) -> tuple[float, float]:
+    """Stage 3: the search's start ``(T0_canny, T0_super)`` (paper VI-A); a given threshold is kept.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    geometry : Geometry
+    t_canny, t_super : float, optional
+        Thresholds fixed by the caller.
+
+    Returns
+    -------
+    (float, float)
+    """
+    c0, s0 = selection.initial_thresholds(rgb, geometry.index)
+    return (float(t_canny) if t_canny is not None else c0, float(t_super) if t_super is not None else s0)
 
 
 def scan_order(region: np.ndarray, st: np.ndarray, pair: np.ndarray) -> np.ndarray:
@@ -257,63 +313,61 @@ def make_model(
     fit_sub: int = 1,
     fit_iterations: int = 6,
 ) -> Model:
-    """The model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
+    """Stage 4: the model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
     The scheme comes from ``params`` (:func:`scheme_of`). With the ``"tpsv"``
-    scheme and ``fit``, colours are fitted to ``rgb`` (:mod:`tpsv.encode.fit`) after
-    the positions are quantised as the file stores them.
+    scheme features are in scan order (:func:`scan_order`) of their positions
+    as the file stores them, and with ``fit`` their colours are fitted to
+    ``rgb`` (:mod:`tpsv.encode.fit`) after the positions are quantised.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    geometry : Geometry
+    extractor : FeatureExtractor
+        Of ``rgb`` and ``geometry.index``.
+    params : Params
+    fit : bool
+    fit_sub, fit_iterations : int
+        Pixel lattice and iterations of the fit.
+
+    Returns
+    -------
+    Model
     """
     h, w = rgb.shape[:2]
+    patches = [r.patch for r in geometry.regions]
     if scheme_of(params) == "paper":
-        fs = extractor.extract(params.t_canny, params.t_super)
-        st = to_patch_space(geometry, fs.xy, fs.region)
-        order = np.arange(len(fs))
+        feats = extractor.extract(params.t_canny, params.t_super).in_patch_space(patches)
     else:
-        fs = tpsv_features(geometry, extractor, params.t_canny, params.t_super)
-        st = fs.st.copy()
-        todo = np.isnan(st[:, 0])
-        if todo.any():
-            st[todo] = to_patch_space(geometry, fs.xy[todo], fs.region[todo])
+        feats = tpsv_features(geometry, extractor, params.t_canny, params.t_super).in_patch_space(patches)
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
-        order = scan_order(fs.region, np.rint(np.clip(st, 0.0, 1.0) * q), fs.pair)
-    feats = Features(
-        region=fs.region.astype(np.int32),
-        st=st,
-        lab=fs.lab.astype(np.float32),
-        kind=fs.kind.astype(np.uint8),
-        pair=fs.pair.astype(np.int32),
-    ).subset(order)
+        feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
     model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params)
     if fit and scheme_of(params) != "paper" and len(feats):
-        from .fit import fit_colors
-
         model = codec.quantize(model)
         model, _ = fit_colors(model, target=geometry.fit_target(rgb, fit_sub), iterations=fit_iterations)
     return model
 
 
 def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float) -> FeatureSet:
-    """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known."""
+    """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known.
+
+    Curvilinear pairs (one per ``CURVE_STEP`` block), the gradation lattice
+    (cells holding an edge pixel subdivided) without its features next to a
+    pair, and the anchors regions still need.
+    """
+    w, h = extractor.w, extractor.h
     cur = extractor.curvilinear(t_canny, step=CURVE_STEP)
-    qt = geometry.lattice(extractor.lab)
     edge = None
     if len(cur):
-        cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, extractor.w - 1)
-        cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, extractor.h - 1)
-        edge = np.unique(cy * extractor.w + cx)
-    grad = qt.features(t_super, edge)
-    if len(cur) and len(grad):
-        from scipy.spatial import cKDTree
-
-        span = float(extractor.w + extractor.h + 10)
-        key_c = np.column_stack([cur.xy, cur.region * span])
-        key_g = np.column_stack([grad.xy, grad.region * span])
-        dist, _ = cKDTree(key_c).query(key_g, k=1, distance_upper_bound=0.5 + 1e-9)
-        grad = grad.subset(~np.isfinite(dist) | (dist > 0.5))
+        cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, w - 1)
+        cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, h - 1)
+        edge = np.unique(cy * w + cx)
+    grad = drop_near(geometry.lattice(extractor.lab).features(t_super, edge), cur, DEDUP_PX, (w, h))
     both = FeatureSet.concat([cur, grad])
-    anchors = extractor._anchors(both)
-    return FeatureSet.concat([both, anchors])
+    return FeatureSet.concat([both, extractor.anchors(both)])
 
 
 def evaluate(
@@ -322,39 +376,43 @@ def evaluate(
     """Encode, decode and render a model at scale 1; return (bytes, decoded model, MSE).
 
     The render is of the decoded (quantised) model, so the error is the one a
-    user of the file sees. ``kernels``: a ``tps.KernelSet`` grouped from a model
-    with the same feature positions (its colours are replaced by the decoded
-    ones, :func:`tpsv.encode.fit.recolor_kernels`), to save the grouping. ``maps``:
-    the region index and ``(S, T)`` maps at scale 1 of the decoded model's
-    regions (``Geometry.index``, ``Geometry.pixel_st()`` when quantisation
-    leaves the regions unchanged), to save computing them.
-    """
-    from ..render.raster import render
+    user of the file sees.
 
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float in [0, 1]
+        The image the error is measured against.
+    model : Model
+    device : str
+        Warp device.
+    kernels : KernelSet, optional
+        Grouped from a model with the same feature positions (its colours are
+        replaced by the decoded ones, :func:`tpsv.tps.recolor`), to save the
+        grouping.
+    maps : (index, st), optional
+        The region index and ``(S, T)`` maps at scale 1 of the decoded model's
+        regions (``Geometry.index``, ``Geometry.pixel_st()`` when quantisation
+        leaves the regions unchanged), to save computing them; then only
+        render steps 3-4 run (:func:`tpsv.render.raster.shade`).
+
+    Returns
+    -------
+    (bytes, Model, float)
+        The file, the decoded model and the mean squared error of its render.
+    """
     data = codec.encode(model)
     decoded = codec.decode(data)
     if kernels is not None:
-        from .fit import recolor_kernels
-
-        kernels = recolor_kernels(kernels, decoded)
+        kernels = tps.recolor(kernels, decoded.features)
     if maps is None:
         out = render(decoded, device=device, kernels=kernels)
     else:
-        from ..tps import group as tps
-        from ..gpu import resolve_device
-        from ..gpu import tps as gtps
-
-        ks = kernels if kernels is not None else tps.group_kernels(decoded)
-        dk = gtps.solve(gtps.upload(ks, resolve_device(device)))
-        img = gtps.rasterise(dk, maps[0], maps[1])
-        out = img.numpy().reshape(decoded.height, decoded.width, 3)
+        out = shade(decoded, maps[0], maps[1], device=device, kernels=kernels)
     return data, decoded, metrics.mse(rgb, out)
 
 
 def _signature(model: Model) -> tuple:
     """What determines a fitted model's colours and error: feature positions, kinds, pairs, regions."""
-    import hashlib
-
     f = model.features
     hsh = hashlib.sha1()
     for a in (f.region, f.st, f.kind, f.pair):
@@ -368,25 +426,210 @@ def _same_region(a: Region, b: Region) -> bool:
         np.array_equal(x, y) for x, y in zip(a.outline, b.outline))
 
 
-def _best_steps(rgb: np.ndarray, model: Model, first: tuple, device: str, kernels=None, maps=None) -> tuple:
+def stored_maps(geometry: Geometry) -> tuple | None:
+    """The pixel maps ``(index, (S, T))`` at scale 1 of the regions as the file stores them.
+
+    ``geometry``'s own maps when quantisation leaves every region unchanged
+    (then a render of a decoded model can reuse them), else None.
+    """
+    h, w = geometry.index.shape
+    same = codec.quantize(Model(width=w, height=h, regions=geometry.regions, features=Features.empty()))
+    if all(_same_region(a, b) for a, b in zip(geometry.regions, same.regions)):
+        return geometry.index, geometry.pixel_st()
+    return None
+
+
+def _best_steps(rgb: np.ndarray, model: Model, first: Evaluation, device: str, kernels=None, maps=None) -> Evaluation:
     """``evaluate`` of ``model`` with the quantisation steps of ``STEP_CHOICES`` giving the best w.
 
     ``first`` is the evaluation with the model's own steps (kept on ties).
     """
-    h, w = rgb.shape[:2]
-
-    def eff(out):
-        return metrics.efficiency(out[2], len(out[0]), w, h)
-
-    best, best_w = first, eff(first)
+    best = first
     own = (model.params.l_step, model.params.ab_step)
     for ls, ab in STEP_CHOICES:
         if (ls, ab) == own:
             continue
-        out = evaluate(rgb, replace(model, params=replace(model.params, l_step=ls, ab_step=ab)), device, kernels, maps)
-        if eff(out) > best_w:
-            best, best_w = out, eff(out)
+        out = Evaluation(*evaluate(rgb, replace(model, params=replace(model.params, l_step=ls, ab_step=ab)),
+                                   device, kernels, maps))
+        if out.efficiency() > best.efficiency():
+            best = out
     return best
+
+
+class Candidates:
+    """Stages 4-6 for any pair of thresholds of one image: features, colour fit, evaluation.
+
+    Candidates whose features come out identical (e.g. two ``T_canny`` above
+    every edge) share their fit and render; only the file (its params differ)
+    is rebuilt.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    geometry : Geometry
+    params : Params
+        Everything but the thresholds, and the scheme.
+    device : str
+        Warp device of the renders.
+    fit : bool
+        Fit the colours (``"tpsv"`` scheme only).
+    """
+
+    def __init__(self, rgb: np.ndarray, geometry: Geometry, params: Params, *, device: str = "cpu", fit: bool = True):
+        self.rgb = rgb
+        self.geometry = geometry
+        self.params = params
+        self.device = device
+        self.scheme = scheme_of(params)
+        self.fitted = fit and self.scheme != "paper"
+        self.extractor = FeatureExtractor(rgb, geometry.index)
+        self.maps = stored_maps(geometry) if self.fitted else None
+        self._fits: dict = {}  # (final, signature) -> (fitted lab, kernels)
+        self._done: dict = {}  # (final, steps, signature) -> (decoded lab, decoded params, mse)
+        self._plain: dict = {}  # (t_canny, t_super) -> Evaluation, without fit
+
+    def params_for(self, t_canny: float, t_super: float) -> Params:
+        """The params of the candidate ``(t_canny, t_super)``."""
+        return replace(self.params, t_canny=float(t_canny), t_super=float(t_super))
+
+    def model(self, t_canny: float, t_super: float) -> Model:
+        """Stage 4: the candidate's features with their unfitted colours (quantised as stored when fitted)."""
+        model = make_model(self.rgb, self.geometry, self.extractor, self.params_for(t_canny, t_super), fit=False)
+        return codec.quantize(model) if self.fitted else model
+
+    def fitted_colours(self, model: Model, final: bool) -> tuple:
+        """Stage 5: ``(lab, kernels)`` fitted to the image: on every pixel (``final``) or the search's lattice.
+
+        ``kernels`` is the grouping the fit used (None without features).
+        """
+        key = (final, _signature(model))
+        if key not in self._fits:
+            sub, its = (1, FINAL_FIT_ITERATIONS) if final else (SEARCH_FIT_SUB, SEARCH_FIT_ITERATIONS)
+            ks = None
+            if len(model.features):
+                model, report = fit_colors(model, target=self.geometry.fit_target(self.rgb, sub), iterations=its)
+                ks = report.kernels
+            self._fits[key] = (model.features.lab, ks)
+        return self._fits[key]
+
+    def evaluate(self, t_canny: float, t_super: float, final: bool = True, steps: bool = False) -> Evaluation:
+        """Stage 6: the candidate encoded, decoded and rendered at scale 1.
+
+        Parameters
+        ----------
+        t_canny, t_super : float
+        final : bool
+            Colours fitted on every pixel (else on the search's lattice).
+        steps : bool
+            Colour steps chosen from ``STEP_CHOICES`` by ``w`` (fitted models only).
+
+        Returns
+        -------
+        Evaluation
+        """
+        if not self.fitted:
+            key = (float(t_canny), float(t_super))
+            if key not in self._plain:
+                self._plain[key] = Evaluation(*evaluate(self.rgb, self.model(t_canny, t_super), self.device))
+            return self._plain[key]
+        model = self.model(t_canny, t_super)
+        key = (final, steps, _signature(model))
+        hit = self._done.get(key)
+        if hit is not None:
+            lab, qparams, err = hit
+            model = replace(model, features=replace(model.features, lab=lab),
+                            params=replace(self.params_for(t_canny, t_super), l_step=qparams.l_step, ab_step=qparams.ab_step))
+            data = codec.encode(model)
+            return Evaluation(data, codec.decode(data), err)
+        lab, ks = self.fitted_colours(model, final)
+        model = replace(model, features=replace(model.features, lab=lab))
+        out = Evaluation(*evaluate(self.rgb, model, self.device, kernels=ks, maps=self.maps))
+        if steps:
+            out = _best_steps(self.rgb, model, out, self.device, ks, self.maps)
+        self._done[key] = (out.model.features.lab, out.model.params, out.mse)
+        return out
+
+
+def search_thresholds(
+    candidates: Candidates,
+    start: tuple[float, float],
+    fixed: tuple[bool, bool] = (False, False),
+    *,
+    iterations: int = 20,
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[tuple[float, float], selection.SearchResult]:
+    """Stage 7: the Monte Carlo search for the thresholds (:mod:`tpsv.encode.search`).
+
+    Fitted candidates are compared fitted on the search's pixel lattice.
+
+    Parameters
+    ----------
+    candidates : Candidates
+    start : (float, float)
+        ``(T0_canny, T0_super)``.
+    fixed : (bool, bool)
+        Thresholds kept at the start (the search varies only the other).
+    iterations, seed : int
+        ``N_total`` and the seed of the search.
+    progress : callable(done, total), optional
+        Called after each evaluation with the number of thresholds evaluated.
+
+    Returns
+    -------
+    best : (float, float)
+        The best thresholds (fixed ones at the start).
+    result : SearchResult
+    """
+    seen: set = set()
+
+    def keep_fixed(tc: float, ts: float) -> tuple[float, float]:
+        return (start[0] if fixed[0] else tc, start[1] if fixed[1] else ts)
+
+    def objective(tc: float, ts: float) -> tuple[float, float]:
+        tc, ts = keep_fixed(tc, ts)
+        out = candidates.evaluate(tc, ts, final=not candidates.fitted)
+        seen.add((tc, ts))
+        if progress:
+            progress(len(seen), iterations)
+        h, w = candidates.geometry.index.shape
+        return out.mse, len(out.data) / (w * h * 3.0)
+
+    # the paper's mutations for its scheme; at least as wide as the start for ours (module doc)
+    min_width = (0.0, 0.0) if candidates.scheme == "paper" else start
+    res = selection.monte_carlo_search(objective, start, iterations=iterations, seed=seed, min_width=min_width)
+    return keep_fixed(res.t_canny, res.t_super), res
+
+
+def finish(
+    candidates: Candidates,
+    best: tuple[float, float],
+    start: tuple[float, float],
+    result: selection.SearchResult,
+    choose_steps: bool,
+) -> Evaluation:
+    """Stage 8: the searched thresholds' result, fitted on every pixel, its colour steps chosen.
+
+    The search compared candidates fitted on a pixel lattice; the result is
+    fitted on every pixel. So that it is never worse than the start (what
+    ``--no-search`` gives), the start is finished the same way and the
+    better of the two is kept -- unless the search found the start
+    ``START_MARGIN`` times less efficient (far beyond the lattice fit's bias,
+    measured at most 1.3x). With ``choose_steps`` the colour steps of the
+    result are then chosen by ``w``. Unfitted candidates are taken as the
+    search evaluated them.
+    """
+    out = candidates.evaluate(*best)
+    if not candidates.fitted:
+        return out
+    first = result.history[0] if result.history else None
+    if best != start and (first is None or first.w * START_MARGIN > result.w):
+        other = candidates.evaluate(*start)
+        if other.efficiency() > out.efficiency():
+            best, out = start, other
+    if choose_steps:
+        out = candidates.evaluate(*best, steps=True)
+    return out
 
 
 def vectorize(
@@ -404,7 +647,7 @@ def vectorize(
     fit: bool = True,
     choose_steps: bool | None = None,
 ) -> VectorizeResult:
-    """Vectorise a photo.
+    """Vectorise a photo: the stages of the module doc, in order.
 
     Parameters
     ----------
@@ -443,118 +686,26 @@ def vectorize(
     -------
     VectorizeResult
     """
-    from . import search as selection
-
     t0 = time.perf_counter()
-    h, w = rgb.shape[:2]
-    if labels is None:
-        labels = segment.segment_auto(rgb, seed=seed)
-    elif labels.shape != (h, w):
-        raise TpsvError(f"label map is {labels.shape[1]}x{labels.shape[0]} but the image is {w}x{h}")
-    geometry = build_geometry(labels)
-    base = params or scheme_params()
-    scheme = scheme_of(base)
-    extractor = FeatureExtractor(rgb, geometry.index)
-    c0, s0 = selection.initial_thresholds(rgb, geometry.index)
-    c0 = float(t_canny) if t_canny is not None else c0
-    s0 = float(t_super) if t_super is not None else s0
-
-    fitted = scheme != "paper" and fit
-    searching = search and iterations > 0 and (t_canny is None or t_super is None)
+    geometry = build_geometry(label_map(rgb, labels, seed))
+    candidates = Candidates(rgb, geometry, params or scheme_params(), device=device, fit=fit)
+    start = start_thresholds(rgb, geometry, t_canny, t_super)
+    fixed = (t_canny is not None, t_super is not None)
+    searching = search and iterations > 0 and not all(fixed)
     if choose_steps is None:
-        choose_steps = searching and scheme != "paper"
-
-    # Candidates whose features come out identical (e.g. two T_canny above every
-    # edge) share their fit and render: only the file (params differ) is rebuilt.
-    # Candidates whose features come out identical (e.g. two T_canny above every
-    # edge) share their fit and render: only the file (params differ) is rebuilt.
-    seen: dict = {}
-    fits: dict = {}
-    maps = None
-    if fitted:
-        same = codec.quantize(Model(width=w, height=h, regions=geometry.regions, features=Features.empty()))
-        if all(_same_region(a, b) for a, b in zip(geometry.regions, same.regions)):
-            maps = (geometry.index, geometry.pixel_st())
-
-    def run(tc: float, ts: float, final: bool = True, steps: bool = False):
-        p = replace(base, t_canny=float(tc), t_super=float(ts))
-        if not fitted:
-            return evaluate(rgb, make_model(rgb, geometry, extractor, p, fit=False), device)
-        from .fit import fit_colors
-
-        model = codec.quantize(make_model(rgb, geometry, extractor, p, fit=False))
-        sig = _signature(model)
-        key = (final, steps, sig)
-        hit = seen.get(key)
-        if hit is None:
-            fk = (final, sig)
-            if fk not in fits:
-                sub, its = (1, FINAL_FIT_ITERATIONS) if final else (SEARCH_FIT_SUB, SEARCH_FIT_ITERATIONS)
-                ks = None
-                if len(model.features):
-                    fm, rep = fit_colors(model, target=geometry.fit_target(rgb, sub), iterations=its)
-                    model, ks = fm, rep.kernels
-                fits[fk] = (model.features.lab, ks)
-            lab, ks = fits[fk]
-            model = replace(model, features=replace(model.features, lab=lab))
-            out = evaluate(rgb, model, device, kernels=ks, maps=maps)
-            if steps:
-                out = _best_steps(rgb, model, out, device, ks, maps)
-            seen[key] = (out[1].features.lab, out[1].params, out[2])
-            return out
-        lab, qparams, err = hit
-        model = replace(model, features=replace(model.features, lab=lab),
-                        params=replace(p, l_step=qparams.l_step, ab_step=qparams.ab_step))
-        data = codec.encode(model)
-        return data, codec.decode(data), err
-
-    def eff(out) -> float:
-        return metrics.efficiency(out[2], len(out[0]), w, h)
-
+        choose_steps = searching and candidates.scheme != "paper"
     history: list = []
     if searching:
-        cache: dict = {}
-
-        def objective(tc: float, ts: float) -> tuple[float, float]:
-            tc = c0 if t_canny is not None else tc
-            ts = s0 if t_super is not None else ts
-            data, decoded, err = run(tc, ts, final=not fitted)
-            cache[(tc, ts)] = (data, decoded, err)
-            if progress:
-                progress(len(cache), iterations)
-            return err, len(data) / (w * h * 3.0)
-
-        res = selection.monte_carlo_search(
-            objective, (c0, s0), iterations=iterations, seed=seed,
-            min_width=(0.0, 0.0) if scheme == "paper" else (c0, s0),
-        )
-        best = (c0 if t_canny is not None else res.t_canny, s0 if t_super is not None else res.t_super)
-        history = res.history
-        if not fitted:
-            data, decoded, err = cache.get(best) or run(*best)
-        else:
-            # The search compared candidates fitted on a pixel lattice; the result is
-            # fitted on every pixel. So that it is never worse than the start (what
-            # --no-search gives), the start is finished the same way and the better
-            # of the two is kept -- unless the search found the start START_MARGIN
-            # times less efficient (far beyond the lattice fit's bias, measured at
-            # most 1.3x). The colour steps of the result are then chosen.
-            out = run(*best)
-            start = res.history[0] if res.history else None
-            if best != (c0, s0) and (start is None or start.w * START_MARGIN > res.w):
-                other = run(c0, s0)
-                if eff(other) > eff(out):
-                    best, out = (c0, s0), other
-            if choose_steps:
-                out = run(*best, steps=True)
-            data, decoded, err = out
+        best, result = search_thresholds(candidates, start, fixed, iterations=iterations, seed=seed, progress=progress)
+        out = finish(candidates, best, start, result, choose_steps)
+        history = result.history
     else:
-        data, decoded, err = run(c0, s0, steps=choose_steps)
+        out = candidates.evaluate(*start, steps=choose_steps)
     return VectorizeResult(
-        model=decoded,
-        data=data,
-        psnr=float("inf") if err == 0 else float(10 * np.log10(1.0 / err)),
-        mse=err,
+        model=out.model,
+        data=out.data,
+        psnr=float("inf") if out.mse == 0 else float(10 * np.log10(1.0 / out.mse)),
+        mse=out.mse,
         seconds=time.perf_counter() - t0,
         history=history,
     )

@@ -7,9 +7,15 @@ that touch only diagonally belong to different regions), matching
 
 from __future__ import annotations
 
+import colorsys
+import heapq
 
+import cv2
 import numpy as np
+from skimage.measure import label as cc_label
+from skimage.segmentation import find_boundaries, random_walker, slic
 
+from ..color import srgb_to_lab
 from ..errors import TpsvError
 
 
@@ -20,8 +26,6 @@ def default_min_size(shape: tuple[int, int]) -> int:
 
 def _components(labels: np.ndarray) -> tuple[np.ndarray, int]:
     """4-connected components of equal labels, numbered 0..n-1 in raster order of first pixel."""
-    from skimage.measure import label as cc_label
-
     comp = cc_label(labels, background=-(1 << 40), connectivity=1)  # background value never occurs
     comp = comp.astype(np.int64) - 1
     return _renumber(comp)
@@ -142,12 +146,6 @@ def split_connected(
 # --------------------------------------------------------------------------- automatic
 
 
-def _lab(rgb: np.ndarray) -> np.ndarray:
-    from skimage.color import rgb2lab
-
-    return rgb2lab(np.clip(rgb, 0, 1)).astype(np.float64)
-
-
 def _check_rgb(rgb: np.ndarray) -> np.ndarray:
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] < 2 or rgb.shape[1] < 2:
@@ -157,12 +155,145 @@ def _check_rgb(rgb: np.ndarray) -> np.ndarray:
     return rgb.astype(np.float32)
 
 
+#: Most SLIC superpixels :func:`segment_auto` starts from (one per 64 px on small images, at least 8).
+MAX_SUPERPIXELS = 300
+#: Region counts :func:`segment_auto` chooses from when none is asked for.
+AUTO_COUNTS = (4, 12)
+
+
+def _superpixels(rgb: np.ndarray) -> tuple[np.ndarray, int]:
+    """SLIC superpixels of an RGB float image, numbered ``0..n-1`` in raster order; returns (map, n)."""
+    H, W = rgb.shape[:2]
+    n_sp = int(min(MAX_SUPERPIXELS, max(8, H * W // 64)))
+    sp = slic(rgb, n_segments=n_sp, compactness=10.0, channel_axis=2, start_label=0, enforce_connectivity=True)
+    return _renumber(sp)
+
+
+class _WardMerge:
+    """The superpixel adjacency graph, merged greedily by shape-weighted Ward cost.
+
+    Per live node: pixel count, sum of Lab colours, perimeter, and shared
+    border lengths with its neighbours. ``parent`` records every merge
+    (``parent[b] = a``: b went into a).
+    """
+
+    def __init__(self, sp: np.ndarray, n: int, lab: np.ndarray, seed: int):
+        flat = sp.ravel()
+        size = np.bincount(flat, minlength=n).astype(np.float64)
+        csum = np.stack([np.bincount(flat, lab[..., k].ravel(), minlength=n) for k in range(3)], axis=1)
+        ka, kb, cnt = _borders(sp, n)
+        per = np.bincount(ka, cnt, minlength=n) + np.bincount(kb, cnt, minlength=n)
+        # the seed only breaks exact cost ties
+        self.jitter = 1.0 + 1e-9 * np.random.default_rng(seed).random(n)
+        self.n = n
+        self.alive = np.ones(n, bool)
+        self.nbr: list[dict[int, float]] = [dict() for _ in range(n)]
+        for a, b, c in zip(ka.tolist(), kb.tolist(), cnt.tolist()):
+            self.nbr[a][b] = float(c)
+            self.nbr[b][a] = float(c)
+        self.size = size.tolist()
+        self.csum = [list(r) for r in csum]
+        self.per = [float(p) for p in per]
+        self.parent = list(range(n))
+
+    def cost(self, a: int, b: int) -> float:
+        """Ward cost of merging neighbours ``a`` and ``b``, times 1..4 for a short shared border."""
+        na, nb = self.size[a], self.size[b]
+        ca = [x / na for x in self.csum[a]]
+        cb = [x / nb for x in self.csum[b]]
+        d2 = sum((x - y) ** 2 for x, y in zip(ca, cb))
+        frac = self.nbr[a][b] / max(1.0, min(self.per[a], self.per[b]))
+        shape = 1.0 + 3.0 * max(0.0, 1.0 - 4.0 * frac)  # short shared border: merge later
+        return na * nb / (na + nb) * d2 * shape * self.jitter[min(a, b)]
+
+    def _entry(self, a: int, x: int):
+        return (self.cost(a, x), min(a, x), max(a, x)) if a < x else (self.cost(x, a), x, a)
+
+    def _merge(self, a: int, b: int) -> None:
+        """Merge ``b`` into ``a``: sums, perimeter, and the borders ``b`` had with others."""
+        nbr = self.nbr
+        self.alive[b] = False
+        self.parent[b] = a
+        self.size[a] += self.size[b]
+        self.csum[a] = [x + y for x, y in zip(self.csum[a], self.csum[b])]
+        self.per[a] = self.per[a] + self.per[b] - 2 * nbr[a][b]
+        del nbr[a][b]
+        del nbr[b][a]
+        for x, l in nbr[b].items():
+            nbr[x].pop(b, None)
+            nbr[a][x] = nbr[a].get(x, 0.0) + l
+            nbr[x][a] = nbr[a][x]
+        nbr[b] = {}
+
+    def run(self, target: int, snapshot_below: int = 0):
+        """Merge down to ``target`` nodes, cheapest pair first.
+
+        Returns
+        -------
+        history : list of (int, float)
+            ``(node count after the merge, its cost)`` for every merge.
+        snapshots : dict
+            ``parent`` (a list) after each merge that left at most
+            ``snapshot_below`` nodes, by node count.
+        """
+        n, nbr = self.n, self.nbr
+        heap = [(self.cost(a, b), a, b) for a in range(n) for b in nbr[a] if a < b]
+        heapq.heapify(heap)
+        history = []
+        snapshots = {}
+        count = n
+        while count > target and heap:
+            c, a, b = heapq.heappop(heap)
+            if not (self.alive[a] and self.alive[b]) or b not in nbr[a]:
+                continue
+            if abs(c - self.cost(a, b)) > 1e-9 * max(1.0, abs(c)):
+                continue  # stale entry
+            self._merge(a, b)
+            for x in nbr[a]:
+                heapq.heappush(heap, self._entry(a, x))
+            count -= 1
+            history.append((count, c))
+            if count <= snapshot_below:
+                snapshots[count] = list(self.parent)
+        return history, snapshots
+
+
+def _roots(parent: list[int]) -> np.ndarray:
+    """The root of every node of a merge forest (``parent[x] == x`` at a root)."""
+    par = list(parent)
+    for x in range(len(par)):
+        r = x
+        while par[r] != r:
+            r = par[r]
+        par[x] = r
+    return np.array(par)
+
+
+def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
+    """The merge forest at the region count in :data:`AUTO_COUNTS` where the next merge's cost jumps most.
+
+    Merging from ``k + 1`` to ``k`` regions cost ``costs[k]``; the jump at
+    ``k`` is ``costs[k - 1] / costs[k]``. Ties keep the smaller ``k``;
+    without any candidate the count is 8, or ``default`` when that was not
+    recorded.
+    """
+    costs = {k: c for k, c in history}
+    best_k, best_jump = 8, -1.0
+    for k in range(AUTO_COUNTS[0], AUTO_COUNTS[1] + 1):
+        if k in snapshots and (k - 1) in costs and k in costs:
+            jump = costs[k - 1] / max(costs[k], 1e-12)
+            if jump > best_jump:
+                best_jump, best_k = jump, k
+    par = snapshots.get(best_k)
+    return default if par is None else par
+
+
 def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -> np.ndarray:
     """A handful of coherent object regions, automatically.
 
     SLIC superpixels (about 300; SLIC converts to Lab itself) are merged greedily, always
     the adjacent pair of smallest Ward cost ``n_a n_b / (n_a + n_b) |c_a -
-    c_b|^2`` (mean Lab colours ``c``, sizes ``n``) scaled up by a factor 1..4
+    c_b|^2`` (mean Lab colours ``c`` by :func:`tpsv.color.srgb_to_lab`, sizes ``n``) scaled up by a factor 1..4
     when the shared border is short relative to the smaller region's
     perimeter (keeps regions compact), down to ``n_regions``. Without
     ``n_regions`` the count is chosen in ``[4, 12]`` at the largest relative
@@ -172,109 +303,34 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     Deterministic for a given ``seed`` (SLIC itself is deterministic; the seed
     only breaks exact cost ties).
 
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3)
+        uint8, or float in ``[0, 1]``.
+    n_regions : int, optional
+        Number of regions to merge down to (before the clean-up).
+    seed : int
+        Breaks exact ties of the merge cost.
+
     Returns
     -------
     labels : ndarray (H, W) int32, values ``0..n-1``
     """
-    from skimage.segmentation import slic
-
     rgb = _check_rgb(rgb)
     H, W = rgb.shape[:2]
     if n_regions is not None and n_regions < 1:
         raise TpsvError("--regions must be at least 1")
-    lab = _lab(rgb)
-    n_sp = int(min(300, max(8, H * W // 64)))
-    sp = slic(rgb, n_segments=n_sp, compactness=10.0, channel_axis=2, start_label=0, enforce_connectivity=True)
-    sp, n = _renumber(sp)
+    sp, n = _superpixels(rgb)
     if n <= 1:
         return np.zeros((H, W), np.int32)
-    flat = sp.ravel()
-    size = np.bincount(flat, minlength=n).astype(np.float64)
-    csum = np.stack([np.bincount(flat, lab[..., k].ravel(), minlength=n) for k in range(3)], axis=1)
-    ka, kb, cnt = _borders(sp, n)
-    per = np.bincount(ka, cnt, minlength=n) + np.bincount(kb, cnt, minlength=n)
-    rng = np.random.default_rng(seed)
-    jitter = 1.0 + 1e-9 * rng.random(n)
-
-    alive = np.ones(n, bool)
-    nbr: list[dict[int, float]] = [dict() for _ in range(n)]
-    for a, b, c in zip(ka.tolist(), kb.tolist(), cnt.tolist()):
-        nbr[a][b] = float(c)
-        nbr[b][a] = float(c)
-    size = size.tolist()
-    csum = [list(r) for r in csum]
-    per = [float(p) for p in per]
-
-    def cost(a, b):
-        na, nb = size[a], size[b]
-        ca = [x / na for x in csum[a]]
-        cb = [x / nb for x in csum[b]]
-        d2 = sum((x - y) ** 2 for x, y in zip(ca, cb))
-        border = nbr[a][b]
-        frac = border / max(1.0, min(per[a], per[b]))
-        shape = 1.0 + 3.0 * max(0.0, 1.0 - 4.0 * frac)  # short shared border: merge later
-        return na * nb / (na + nb) * d2 * shape * jitter[min(a, b)]
-
-    import heapq
-
-    heap = [(cost(a, b), a, b) for a in range(n) for b in nbr[a] if a < b]
-    heapq.heapify(heap)
-    parent = list(range(n))
-    history = []  # (count after merge, cost)
-    count = n
-    target = n_regions if n_regions is not None else 1
-    snapshots = {}
-    while count > target and heap:
-        c, a, b = heapq.heappop(heap)
-        if not (alive[a] and alive[b]) or b not in nbr[a]:
-            continue
-        if abs(c - cost(a, b)) > 1e-9 * max(1.0, abs(c)):
-            continue  # stale entry
-        # merge b into a
-        alive[b] = False
-        parent[b] = a
-        size[a] += size[b]
-        csum[a] = [x + y for x, y in zip(csum[a], csum[b])]
-        per[a] = per[a] + per[b] - 2 * nbr[a][b]
-        del nbr[a][b]
-        del nbr[b][a]
-        for x, l in nbr[b].items():
-            nbr[x].pop(b, None)
-            nbr[a][x] = nbr[a].get(x, 0.0) + l
-            nbr[x][a] = nbr[a][x]
-        nbr[b] = {}
-        for x in nbr[a]:
-            heapq.heappush(heap, (cost(a, x), min(a, x), max(a, x)) if a < x else (cost(x, a), x, a))
-        count -= 1
-        history.append((count, c))
-        if n_regions is None and count <= 12:
-            snapshots[count] = list(parent)
-
-    def resolve(par):
-        par = list(par)
-        for x in range(n):
-            r = x
-            while par[r] != r:
-                r = par[r]
-            par[x] = r
-        return np.array(par)
-
+    graph = _WardMerge(sp, n, srgb_to_lab(np.clip(rgb, 0, 1)).astype(np.float64), seed)
     if n_regions is None:
-        costs = {k: c for k, c in history}
-        # merging from k+1 to k cost costs[k]; pick k (4..12) where the next merge jumps most
-        best_k, best_jump = 8, -1.0
-        for k in range(4, 13):
-            if k in snapshots and (k - 1) in costs and k in costs:
-                jump = costs[k - 1] / max(costs[k], 1e-12)
-                if jump > best_jump:
-                    best_jump, best_k = jump, k
-        par = snapshots.get(best_k)
-        if par is None:
-            par = parent
-        root = resolve(par)
+        history, snapshots = graph.run(1, snapshot_below=AUTO_COUNTS[1])
+        parent = _elbow(history, snapshots, graph.parent)
     else:
-        root = resolve(parent)
-    labels = root[sp]
+        graph.run(n_regions)
+        parent = graph.parent
+    labels = _roots(parent)[sp]
     return split_connected(labels, min_size=default_min_size((H, W)), sliver_width=1.5)
 
 
@@ -333,9 +389,6 @@ def segment_strokes(rgb: np.ndarray, strokes_rgb: np.ndarray, max_side: int = 25
     TpsvError
         No stroke, a single stroke colour, or strokes of another size.
     """
-    import cv2
-    from skimage.segmentation import random_walker
-
     rgb = _check_rgb(rgb)
     H, W = rgb.shape[:2]
     s = np.asarray(strokes_rgb)
@@ -373,8 +426,6 @@ def segment_strokes(rgb: np.ndarray, strokes_rgb: np.ndarray, max_side: int = 25
 
 def palette(n: int) -> np.ndarray:
     """``n`` distinct RGB colours (uint8), golden-ratio hues."""
-    import colorsys
-
     out = np.zeros((max(n, 1), 3), np.uint8)
     for k in range(n):
         hue = (k * 0.6180339887498949) % 1.0
@@ -386,8 +437,6 @@ def palette(n: int) -> np.ndarray:
 
 def overlay_regions(rgb: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> np.ndarray:
     """Region colours blended over the photo, boundaries in white: RGB uint8 (H, W, 3)."""
-    from skimage.segmentation import find_boundaries
-
     rgb = _check_rgb(rgb)
     labels = np.asarray(labels)
     if labels.shape != rgb.shape[:2]:

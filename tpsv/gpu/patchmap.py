@@ -23,6 +23,10 @@ Output pixel ``(X, Y)`` of an ``H x W`` index map samples source point
 ``((X + 0.5) * Ws / W, (Y + 0.5) * Hs / H)`` where ``(Ws, Hs) = src_size``, as
 in ``tpsv.geometry.outline.rasterize_regions``. Pixels with a negative index get
 ``(-1, -1)``.
+
+The kernels take the four arrays as one :class:`PatchArrays` struct and the
+stopping rules as one :class:`Search` struct; the full-frame map and the
+scattered points share one per-point body (:func:`_inverse`).
 """
 
 from __future__ import annotations
@@ -30,11 +34,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import warp as wp
 
-from . import warp
 from ..geometry.patch import affine_frame, coefficients
-
-wp = warp()
+from . import warp as _warp
 
 
 @wp.func
@@ -96,30 +99,30 @@ def _outside(ab: wp.vec2):
     return wp.max(wp.max(wp.max(0.0, -ab[0]), ab[0] - 1.0), wp.max(-ab[1], ab[1] - 1.0))
 
 
+@wp.struct
+class PatchArrays:
+    """All patches as flat arrays (see the module docstring)."""
+
+    pos: wp.array(dtype=wp.vec2)
+    coef: wp.array(dtype=wp.vec2)
+    reg_i: wp.array2d(dtype=wp.int32)
+    reg_f: wp.array2d(dtype=wp.float32)
+
+
+@wp.struct
+class Search:
+    """Stopping rules of the inverse: ``t_loc`` px, ``n_itr`` bisection levels, ``n_newton`` steps."""
+
+    t_loc: float
+    n_itr: int
+    n_newton: int
+
+
 @wp.func
-def _solve(
-    r: int,
-    p: wp.vec2,
-    pos: wp.array(dtype=wp.vec2),
-    coef: wp.array(dtype=wp.vec2),
-    reg_i: wp.array2d(dtype=wp.int32),
-    reg_f: wp.array2d(dtype=wp.float32),
-    t_loc: float,
-    n_itr: int,
-    n_newton: int,
-):
-    M = reg_i[r, 0]
-    N = reg_i[r, 1]
-    poff = reg_i[r, 2]
-    coff = reg_i[r, 3]
+def _locate_cell(pos: wp.array(dtype=wp.vec2), poff: int, M: int, N: int, p: wp.vec2):
+    """Cell ``(i, j)`` holding ``p``: bilinear guess from the patch corners, then a walk over quads."""
     fm = float(M - 1)
     fn = float(N - 1)
-    if reg_f[r, 0] > 0.5:
-        d = p - wp.vec2(reg_f[r, 1], reg_f[r, 2])
-        s = reg_f[r, 3] * d[0] + reg_f[r, 4] * d[1]
-        t = reg_f[r, 5] * d[0] + reg_f[r, 6] * d[1]
-        return wp.vec2(wp.clamp(s / fm, 0.0, 1.0), wp.clamp(t / fn, 0.0, 1.0))
-    # locate the cell: bilinear guess from the patch corners, then walk over quads
     g = _bilin(pos[poff], pos[poff + (M - 1) * N], pos[poff + N - 1], pos[poff + M * N - 1], p, 5)
     i = wp.clamp(int(wp.floor(g[0] * fm)), 0, M - 2)
     j = wp.clamp(int(wp.floor(g[1] * fn)), 0, N - 2)
@@ -140,8 +143,12 @@ def _solve(
             break
         i = i + di
         j = j + dj
-    base = coff + (i * (N - 1) + j) * 16
-    # 2D binary search in the cell
+    return i, j
+
+
+@wp.func
+def _bisect_cell(coef: wp.array(dtype=wp.vec2), base: int, p: wp.vec2, t_loc: float, n_itr: int):
+    """2D binary search in one cell: corner ``(u0, v0)`` and side ``h`` of the sub-square holding ``p``."""
     u0 = float(0.0)
     v0 = float(0.0)
     h = float(1.0)
@@ -196,9 +203,12 @@ def _solve(
         u0 = u0 + float(qa) * h2
         v0 = v0 + float(qb) * h2
         h = h2
-    s = float(i) + u0 + 0.5 * h
-    t = float(j) + v0 + 0.5 * h
-    # Newton polish on the global surface
+    return u0, v0, h
+
+
+@wp.func
+def _newton(coef: wp.array(dtype=wp.vec2), coff: int, M: int, N: int, p: wp.vec2, s: float, t: float, n_newton: int):
+    """Newton polish of ``(s, t)`` on the global surface (steps at most 2 cells long)."""
     for _n in range(n_newton):
         val, ds, dt = _surface(coef, coff, M, N, s, t)
         res = val - p
@@ -213,65 +223,71 @@ def _solve(
         k = wp.min(1.0, 2.0 / wp.max(nrm, 1.0e-30))
         s = s - k * es
         t = t - k * et
+    return s, t
+
+
+@wp.func
+def _inverse(ps: PatchArrays, opt: Search, r: int, p: wp.vec2):
+    """Normalised ``(S, T)`` of point ``p`` in region ``r``'s patch; ``(-1, -1)`` when ``r < 0``."""
+    if r < 0:
+        return wp.vec2(-1.0, -1.0)
+    M = ps.reg_i[r, 0]
+    N = ps.reg_i[r, 1]
+    fm = float(M - 1)
+    fn = float(N - 1)
+    if ps.reg_f[r, 0] > 0.5:
+        # an exactly affine patch: closed form
+        d = p - wp.vec2(ps.reg_f[r, 1], ps.reg_f[r, 2])
+        s = ps.reg_f[r, 3] * d[0] + ps.reg_f[r, 4] * d[1]
+        t = ps.reg_f[r, 5] * d[0] + ps.reg_f[r, 6] * d[1]
+        return wp.vec2(wp.clamp(s / fm, 0.0, 1.0), wp.clamp(t / fn, 0.0, 1.0))
+    coff = ps.reg_i[r, 3]
+    i, j = _locate_cell(ps.pos, ps.reg_i[r, 2], M, N, p)
+    u0, v0, h = _bisect_cell(ps.coef, coff + (i * (N - 1) + j) * 16, p, opt.t_loc, opt.n_itr)
+    s, t = _newton(ps.coef, coff, M, N, p, float(i) + u0 + 0.5 * h, float(j) + v0 + 0.5 * h, opt.n_newton)
     return wp.vec2(wp.clamp(s / fm, 0.0, 1.0), wp.clamp(t / fn, 0.0, 1.0))
 
 
 @wp.kernel
-def _map_kernel(
-    index: wp.array2d(dtype=wp.int32),
-    pos: wp.array(dtype=wp.vec2),
-    coef: wp.array(dtype=wp.vec2),
-    reg_i: wp.array2d(dtype=wp.int32),
-    reg_f: wp.array2d(dtype=wp.float32),
-    sx: float,
-    sy: float,
-    t_loc: float,
-    n_itr: int,
-    n_newton: int,
-    out: wp.array2d(dtype=wp.vec2),
-):
+def _map_kernel(ps: PatchArrays, opt: Search, index: wp.array2d(dtype=wp.int32), sx: float, sy: float, out: wp.array2d(dtype=wp.vec2)):
+    """Every output pixel: its source point ``((x + 0.5) sx, (y + 0.5) sy)`` in its region."""
     y, x = wp.tid()
-    r = index[y, x]
-    if r < 0:
-        out[y, x] = wp.vec2(-1.0, -1.0)
-        return
     p = wp.vec2((float(x) + 0.5) * sx, (float(y) + 0.5) * sy)
-    out[y, x] = _solve(r, p, pos, coef, reg_i, reg_f, t_loc, n_itr, n_newton)
+    out[y, x] = _inverse(ps, opt, index[y, x], p)
 
 
 @wp.kernel
-def _points_kernel(
-    region: wp.array(dtype=wp.int32),
-    xy: wp.array(dtype=wp.vec2),
-    pos: wp.array(dtype=wp.vec2),
-    coef: wp.array(dtype=wp.vec2),
-    reg_i: wp.array2d(dtype=wp.int32),
-    reg_f: wp.array2d(dtype=wp.float32),
-    t_loc: float,
-    n_itr: int,
-    n_newton: int,
-    out: wp.array(dtype=wp.vec2),
-):
+def _points_kernel(ps: PatchArrays, opt: Search, region: wp.array(dtype=wp.int32), xy: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec2)):
+    """Scattered points ``xy`` in regions ``region``."""
     k = wp.tid()
-    r = region[k]
-    if r < 0:
-        out[k] = wp.vec2(-1.0, -1.0)
-        return
-    out[k] = _solve(r, xy[k], pos, coef, reg_i, reg_f, t_loc, n_itr, n_newton)
+    out[k] = _inverse(ps, opt, region[k], xy[k])
 
 
 @dataclass
 class PatchSet:
-    """All patches of a model as flat device arrays (see the module docstring)."""
+    """All patches of a model as flat device arrays (see the module docstring).
 
-    pos: object
-    coef: object
-    reg_i: object
-    reg_f: object
+    ``arrays`` is the :class:`PatchArrays` struct the kernels take.
+    """
+
+    arrays: PatchArrays
     device: str
 
     @classmethod
     def build(cls, patches, device: str = "cpu") -> "PatchSet":
+        """Flatten ``patches`` (one per region) onto ``device``.
+
+        Parameters
+        ----------
+        patches : list of Patch
+        device : str
+            Warp device (``cpu``, ``cuda``, ``cuda:N``).
+
+        Returns
+        -------
+        PatchSet
+        """
+        _warp()
         pos_l, coef_l = [], []
         R = len(patches)
         reg_i = np.zeros((max(R, 1), 4), np.int32)
@@ -292,13 +308,20 @@ class PatchSet:
             co += K.shape[0]
         pos = np.concatenate(pos_l, axis=0) if pos_l else np.zeros((1, 2))
         coef = np.concatenate(coef_l, axis=0) if coef_l else np.zeros((1, 2))
-        return cls(
-            pos=wp.array(pos.astype(np.float32), dtype=wp.vec2, device=device),
-            coef=wp.array(coef.astype(np.float32), dtype=wp.vec2, device=device),
-            reg_i=wp.array(reg_i, dtype=wp.int32, device=device),
-            reg_f=wp.array(reg_f, dtype=wp.float32, device=device),
-            device=device,
-        )
+        arrays = PatchArrays()
+        arrays.pos = wp.array(pos.astype(np.float32), dtype=wp.vec2, device=device)
+        arrays.coef = wp.array(coef.astype(np.float32), dtype=wp.vec2, device=device)
+        arrays.reg_i = wp.array(reg_i, dtype=wp.int32, device=device)
+        arrays.reg_f = wp.array(reg_f, dtype=wp.float32, device=device)
+        return cls(arrays=arrays, device=device)
+
+
+def _search(t_loc: float, n_itr: int, newton: int) -> Search:
+    opt = Search()
+    opt.t_loc = float(t_loc)
+    opt.n_itr = int(n_itr)
+    opt.n_newton = int(newton)
+    return opt
 
 
 def inverse_map(
@@ -324,6 +347,10 @@ def inverse_map(
         Model size; output pixel (X, Y) samples ``((X+0.5) Ws/W, (Y+0.5) Hs/H)``.
     device : str
         Warp device (``cpu``, ``cuda``, ``cuda:N``).
+    t_loc, n_itr, newton
+        Stopping rules (module docstring).
+    patch_set : PatchSet, optional
+        The patches already on the device (then ``device`` is its device).
 
     Returns
     -------
@@ -337,23 +364,37 @@ def inverse_map(
     out = wp.empty((H, W), dtype=wp.vec2, device=device)
     sx = float(src_size[0]) / float(W)
     sy = float(src_size[1]) / float(H)
-    wp.launch(
-        _map_kernel,
-        dim=(H, W),
-        inputs=[index, ps.pos, ps.coef, ps.reg_i, ps.reg_f, sx, sy, float(t_loc), int(n_itr), int(newton)],
-        outputs=[out],
-        device=device,
-    )
+    wp.launch(_map_kernel, dim=(H, W), inputs=[ps.arrays, _search(t_loc, n_itr, newton), index, sx, sy, out], device=device)
     return out
 
 
 def inverse_map_numpy(patches, index, src_size, device: str = "cpu", **kw) -> np.ndarray:
-    """:func:`inverse_map` copied to the host: ndarray (H, W, 2) float32."""
+    """:func:`inverse_map` copied to the host.
+
+    Returns
+    -------
+    ndarray (H, W, 2) float32
+    """
     return inverse_map(patches, index, src_size, device=device, **kw).numpy().reshape(np.shape(index) + (2,))
 
 
 def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.001, n_itr: int = 8, newton: int = 12) -> np.ndarray:
-    """Normalised ``(S, T)`` of arbitrary points ``xy`` (n, 2) in regions ``region`` (n,); ndarray (n, 2)."""
+    """Normalised ``(S, T)`` of arbitrary points.
+
+    Parameters
+    ----------
+    patches : list of Patch
+    region : array_like (n,) int
+        Region of each point (negative: ``(-1, -1)``).
+    xy : array_like (n, 2)
+        Points in model pixels.
+    device, t_loc, n_itr, newton
+        As :func:`inverse_map`.
+
+    Returns
+    -------
+    ndarray (n, 2) float32
+    """
     ps = PatchSet.build(patches, device)
     xy = np.ascontiguousarray(xy, np.float32).reshape(-1, 2)
     region = np.ascontiguousarray(region, np.int32).reshape(-1)
@@ -361,21 +402,7 @@ def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.00
     if n == 0:
         return np.zeros((0, 2), np.float32)
     out = wp.empty(n, dtype=wp.vec2, device=device)
-    wp.launch(
-        _points_kernel,
-        dim=n,
-        inputs=[
-            wp.array(region, dtype=wp.int32, device=device),
-            wp.array(xy, dtype=wp.vec2, device=device),
-            ps.pos,
-            ps.coef,
-            ps.reg_i,
-            ps.reg_f,
-            float(t_loc),
-            int(n_itr),
-            int(newton),
-        ],
-        outputs=[out],
-        device=device,
-    )
+    reg_d = wp.array(region, dtype=wp.int32, device=device)
+    xy_d = wp.array(xy, dtype=wp.vec2, device=device)
+    wp.launch(_points_kernel, dim=n, inputs=[ps.arrays, _search(t_loc, n_itr, newton), reg_d, xy_d, out], device=device)
     return out.numpy().reshape(n, 2)

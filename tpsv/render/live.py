@@ -13,8 +13,8 @@ kernels, the rendered image) and brings them up to date for a new model:
 2. **Grouping.** When the features' regions and ``(S, T)``, the patches and
    the TPS parameters are unchanged (a colour edit: ``recolor``), the
    grouping is unchanged too: the kernel set is reused with the new colours
-   (duplicate merging redone exactly as :func:`tpsv.tps.group.group_kernels` does).
-   Otherwise the kernels are regrouped with :func:`tpsv.tps.group.group_kernels`.
+   (:func:`tpsv.tps.recolor`, duplicates merged as :func:`tpsv.tps.group_kernels`
+   merges them). Otherwise the kernels are regrouped with :func:`tpsv.tps.group_kernels`.
 3. **Solve.** A kernel whose system is identical to one already solved (same
    local points, colours, frame, count and smoothing: compared bit for bit)
    reuses that solution; the others are solved as a subset
@@ -32,11 +32,17 @@ The result is bit-identical to :func:`tpsv.render.raster.render` of the new mode
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..tps import group as tps
+from .. import tps
+from ..errors import TpsvError
+from ..gpu import resolve_device
+# Warp is imported with gpu.tps; this module exists only to render, so it pays for it on import
+from ..gpu import tps as gtps
+from .pixelmap import draw_order, pixel_map
+from .raster import ONE_PIECE_PIXELS, Stopwatch, output_size
 
 
 #: Above this fraction of dirty pixels, every pixel is rasterised (one regular launch).
@@ -87,8 +93,6 @@ class UpdateStats:
 
 def same_geometry(a, b) -> bool:
     """Whether two models have the same size, outlines, patches and draw order."""
-    from .raster import draw_order
-
     if (a.width, a.height) != (b.width, b.height) or len(a.regions) != len(b.regions):
         return False
     if draw_order(a) != draw_order(b):
@@ -128,54 +132,14 @@ def same_grouping(a, b) -> bool:
                for ra, rb in zip(a.regions, b.regions))
 
 
-class _Merge:
-    """Duplicate-feature groups of a model, exactly as ``tps.group_kernels`` forms them (``merge_px = 0``)."""
-
-    def __init__(self, model):
-        f = model.features
-        F = len(f)
-        self.F = F
-        self.R = len(model.regions)
-        self.groups = None
-        self.keep = np.ones(F, bool)
-        if F > 1:
-            key = np.array(f.st, np.float64).reshape(F, 2)
-            reg = np.asarray(f.region, np.int64).reshape(F)
-            o = np.lexsort((key[:, 1], key[:, 0], reg))
-            a, b = o[1:], o[:-1]
-            same = (reg[a] == reg[b]) & (key[a, 0] == key[b, 0]) & (key[a, 1] == key[b, 1])
-            if same.any():
-                gid = np.concatenate([[0], np.cumsum(~same)])
-                first = o[np.concatenate([[True], ~same])]
-                cnt = np.bincount(gid)[:, None]
-                self.groups = (o, gid, first, cnt)
-                self.keep[:] = False
-                self.keep[first] = True
-
-    def lab_and_fill(self, model):
-        """``KernelSet.lab`` and ``KernelSet.fill`` for ``model``'s colours."""
-        F = self.F
-        lab_all = np.asarray(model.features.lab, np.float32).reshape(F, 3).copy()
-        if self.groups is not None:
-            o, gid, first, cnt = self.groups
-            lab_sum = np.zeros((first.size, 3))
-            np.add.at(lab_sum, gid, lab_all[o].astype(np.float64))
-            lab_all[first] = (lab_sum / cnt).astype(np.float32)
-        fill_lab = lab_all[self.keep].astype(np.float64).mean(0) if F else np.array([50.0, 0.0, 0.0])
-        fill = np.broadcast_to(fill_lab.astype(np.float32), (self.R, 3)).copy()
-        return lab_all, fill
-
-
 def kernel_keys(ks) -> np.ndarray:
     """One byte string per kernel that determines its solution (frame, smoothing, count, slots' (S, T) and Lab)."""
-    from ..gpu.tps import kernel_lambda
-
     n, K = ks.n_kernels, ks.kernel_size
     idx = np.maximum(ks.index, 0)
     act = (ks.index >= 0)[..., None]
     st = np.where(act, ks.st[idx], 0.0).reshape(n, 2 * K)
     lab = np.where(act, ks.lab[idx].astype(np.float64), 0.0).reshape(n, 3 * K)
-    head = np.column_stack([ks.frame, kernel_lambda(ks), ks.count.astype(np.float64),
+    head = np.column_stack([ks.frame, tps.kernel_lambda(ks), ks.count.astype(np.float64),
                             ks.degenerate.astype(np.float64)]) if n else np.zeros((0, 7))
     rows = np.ascontiguousarray(np.concatenate([head, st, lab], axis=1), np.float64)
     return rows.view(np.dtype((np.void, rows.shape[1] * 8))).reshape(n)
@@ -203,7 +167,7 @@ class LiveImage:
     ----------
     model : Model
         The current model (not copied: do not mutate it).
-    kernels : tpsv.tps.group.KernelSet
+    kernels : tpsv.tps.KernelSet
     stats : UpdateStats
         Figures of the last build or update.
 
@@ -217,8 +181,6 @@ class LiveImage:
     """
 
     def __init__(self, model, width=None, height=None, scale=None, device: str = "cpu", threads=None, clamp: bool = True):
-        from ..gpu import resolve_device
-
         self.device = resolve_device(device)
         self._size_args = (width, height, scale)
         self.threads = threads
@@ -227,6 +189,8 @@ class LiveImage:
         self.kernels = None
         self._dk = None
         self._out = None
+        self._pm = None  # PixelMap of the current geometry
+        self._duplicates = None  # duplicate groups of the current features' positions
         self.stats = self._rebuild(model, full=True)
 
     # ------------------------------------------------------------------ public
@@ -249,97 +213,97 @@ class LiveImage:
     # ------------------------------------------------------------------ internals
 
     def _rebuild(self, model, full: bool) -> UpdateStats:
-        import warp as wp
-
-        from ..gpu import tps as gtps
-        from ..gpu.patchmap import inverse_map
-        from .raster import output_size, region_index
-
-        dev = self.device
-        times: dict = {}
+        """Steps 1-4 of the module docstring for ``model`` (everything when ``full``)."""
+        watch = Stopwatch(self.device)
         t_start = time.perf_counter()
-        t0 = t_start
-
-        def tick(name):
-            nonlocal t0
-            wp.synchronize_device(dev)
-            now = time.perf_counter()
-            times[name] = now - t0
-            t0 = now
-
         old = self.model
         if old is not None and (old.width, old.height) != (model.width, model.height):
             full = True
         W, H = output_size(model, *self._size_args)
+        if W * H > ONE_PIECE_PIXELS:
+            # the live image keeps full-frame maps and the image on the device
+            raise TpsvError(f"output {W}x{H} px is too large for live editing (at most {ONE_PIECE_PIXELS:,} px)")
+        geometry, dirty = self._update_geometry(model, W, H, full)
+        watch("geometry")
+        ks, regrouped = self._update_grouping(model, full)
+        watch("group")
+        reuse = self._match(ks, model, full, regrouped)
+        watch("match")
+        dk, solved = gtps.solve_reusing(ks, self._dk, reuse, device=self.device, threads=self.threads)
+        watch("solve")
+        pixels = self._rasterise(dk, ks, reuse, dirty)
+        watch("rasterise")
+        times = dict(watch.times, total=time.perf_counter() - t_start)
+        self.model, self.kernels, self._dk = model, ks, dk
+        return UpdateStats(kernels=ks.n_kernels, solved=solved, pixels=pixels, regrouped=regrouped,
+                           geometry=geometry, seconds=times)
 
-        # 1. geometry
-        geometry = full or not same_geometry(old, model)
+    def _update_geometry(self, model, W: int, H: int, full: bool):
+        """Step 1: a new pixel map when the geometry changed.
+
+        Returns
+        -------
+        recomputed : bool
+        dirty : (H * W,) bool or None
+            Pixels whose region or ``(S, T)`` changed (None when ``full``:
+            every pixel is drawn again).
+        """
+        recomputed = full or not same_geometry(self.model, model)
         dirty = None if full else np.zeros(H * W, bool)
-        if geometry:
-            index = region_index(model, W, H)
-            index_d = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=dev)
-            st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=dev)
-            st_h = st_d.numpy().reshape(H, W, 2)
+        if recomputed:
+            pm = pixel_map(model, W, H, self.device)
             if not full:
-                dirty |= (index != self._index).ravel()
-                dirty |= (st_h != self._st_h).any(axis=2).ravel()
+                dirty |= (pm.index != self._pm.index).ravel()
+                dirty |= (pm.st != self._pm.st).any(axis=2).ravel()
             self.W, self.H = W, H
-            self._index, self._index_d, self._st_d, self._st_h = index, index_d, st_d, st_h
-        tick("geometry")
+            self._pm = pm
+        return recomputed, dirty
 
-        # 2. grouping
-        regrouped = full or not same_grouping(old, model)
+    def _update_grouping(self, model, full: bool):
+        """Step 2: the kernel set of ``model``, regrouped only when positions or parameters changed.
+
+        Returns
+        -------
+        ks : KernelSet
+        regrouped : bool
+        """
+        regrouped = full or not same_grouping(self.model, model)
         if regrouped:
-            ks = tps.group_kernels(model)
-            self._merge = _Merge(model)
-        else:
-            lab, fill = self._merge.lab_and_fill(model)
-            ks = replace(self.kernels, lab=lab, fill=fill)
-        tick("group")
+            self._duplicates = tps.Duplicates.of_features(model.features)
+            return tps.group_kernels(model), True
+        return tps.recolor(self.kernels, model.features, self._duplicates), False
 
-        # 3. which kernels can reuse a solution
+    def _match(self, ks, model, full: bool, regrouped: bool) -> np.ndarray:
+        """Step 3: for each kernel of ``ks``, an old kernel with the identical system, or -1."""
         n = ks.n_kernels
-        prev = self._dk
         old_ks = self.kernels
-        if full or prev is None or not _same_tps_params(old, model):
-            reuse = np.full(n, -1, np.int64)
-        elif not regrouped:
+        if full or self._dk is None or not _same_tps_params(self.model, model):
+            return np.full(n, -1, np.int64)
+        if not regrouped:
             idx = np.maximum(ks.index, 0)
             act = ks.index >= 0
             same = ((old_ks.lab[idx] == ks.lab[idx]).all(axis=2) | ~act).all(axis=1)
-            reuse = np.where(same, np.arange(n), -1)
+            return np.where(same, np.arange(n), -1)
+        lookup = {key.tobytes(): i for i, key in enumerate(kernel_keys(old_ks))}
+        return np.array([lookup.get(key.tobytes(), -1) for key in kernel_keys(ks)], np.int64)
+
+    def _rasterise(self, dk, ks, reuse: np.ndarray, dirty) -> int:
+        """Step 4: draw the dirty pixels again (all when ``dirty`` is None); returns how many."""
+        pm = self._pm
+        if dirty is None:
+            self._out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
+            return self.H * self.W
+        dirty |= self._kernel_dirty(ks, self.kernels, reuse)
+        pix = np.flatnonzero(dirty)
+        if pix.size > FULL_RASTER_FRACTION * dirty.size:
+            gtps.rasterise(dk, pm.index_d, pm.st_d, out=self._out, threads=self.threads, clamp=self.clamp)
         else:
-            lookup = {key.tobytes(): i for i, key in enumerate(kernel_keys(old_ks))}
-            reuse = np.array([lookup.get(key.tobytes(), -1) for key in kernel_keys(ks)], np.int64)
-        tick("match")
-
-        dk, solved = gtps.solve_reusing(ks, prev, reuse, device=dev, threads=self.threads)
-        tick("solve")
-
-        # 4. rasterise
-        if full:
-            self._out = gtps.rasterise(dk, self._index_d, self._st_d, threads=self.threads, clamp=self.clamp)
-            pixels = H * W
-        else:
-            dirty |= self._kernel_dirty(ks, old_ks, reuse)
-            pix = np.flatnonzero(dirty)
-            if pix.size > FULL_RASTER_FRACTION * dirty.size:
-                gtps.rasterise(dk, self._index_d, self._st_d, out=self._out, threads=self.threads, clamp=self.clamp)
-            else:
-                gtps.rasterise_pixels(dk, self._index_d, self._st_d, pix, self._out, threads=self.threads,
-                                      clamp=self.clamp)
-            pixels = int(pix.size)
-        tick("rasterise")
-        times["total"] = time.perf_counter() - t_start
-
-        self.model = model
-        self.kernels = ks
-        self._dk = dk
-        return UpdateStats(kernels=n, solved=solved, pixels=pixels, regrouped=regrouped, geometry=geometry, seconds=times)
+            gtps.rasterise_pixels(dk, pm.index_d, pm.st_d, pix, self._out, threads=self.threads, clamp=self.clamp)
+        return int(pix.size)
 
     def _kernel_dirty(self, ks, old_ks, reuse) -> np.ndarray:
         """Pixels (flat bool) whose colour may depend on a re-solved kernel or a changed grid or fill."""
-        index = self._index.ravel()
+        index = self._pm.index.ravel()
         R = ks.grid.shape[0]
         solved = reuse < 0
         grid_changed = np.ones(R, bool)
@@ -366,7 +330,7 @@ class LiveImage:
         if near.any() and cand.any():
             pi = np.flatnonzero(cand)
             r = index[pi]
-            st = self._st_h.reshape(-1, 2)[pi]
+            st = self._pm.st.reshape(-1, 2)[pi]
             gx = ks.grid[r, 0]
             gy = ks.grid[r, 1]
             # the cell as the device computes it (float32)

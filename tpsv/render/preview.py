@@ -12,9 +12,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..model import CURVILINEAR, GRADATION, Model
-from ..geometry.patch import denormalize, forward
+from ..geometry.patch import forward
+from ..geometry.regions import to_pixel_space
 from ..geometry.segment import palette
+from ..model import CURVILINEAR, GRADATION, Model
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 
@@ -70,12 +71,7 @@ def draw_preview(rgb: np.ndarray, model: Model, scale: int = 2, features: bool =
     # features
     f = model.features
     if features and f is not None and len(f):
-        xy = np.zeros((len(f), 2))
-        for r, reg in enumerate(model.regions):
-            sel = f.region == r
-            if sel.any():
-                st = denormalize(reg.patch, f.st[sel])
-                xy[sel] = forward(reg.patch, st[:, 0], st[:, 1])
+        xy = to_pixel_space([r.patch for r in model.regions], f.region, f.st)
         idx = np.arange(len(f))
         colours = np.zeros((len(f), 3), np.uint8)
         colours[f.kind == GRADATION] = (40, 220, 40)

@@ -1,0 +1,83 @@
+"""Regions of a label map; points between pixel space and patch space (tpsv.geometry.regions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tpsv.edit.common import feature_xy
+from tpsv.errors import TpsvError
+from tpsv.geometry.regions import build_regions, region_borders, to_patch_space, to_pixel_space
+from tpsv.model import GRADATION, Features, Model
+
+
+def two_labels(h=24, w=32):
+    labels = np.zeros((h, w), np.int32)
+    labels[4:12, 3:14] = 3
+    labels[15:22, 20:30] = 3  # the same label, not connected
+    labels[0:3, 25:] = 5
+    return labels
+
+
+def test_build_regions_splits_disconnected_labels_and_rasterises_them():
+    labels = two_labels()
+    regions, index = build_regions(labels)
+    assert sorted(r.label for r in regions) == [0, 3, 3, 5]
+    assert index.shape == labels.shape
+    assert np.array_equal(np.array([r.label for r in regions])[index], labels)  # pixel-aligned shapes
+    assert len(np.unique(index[labels == 3])) == 2
+
+
+def test_build_regions_keeps_a_single_pixel_region():
+    labels = np.zeros((9, 9), np.int32)
+    labels[4, 4] = 1
+    regions, index = build_regions(labels)
+    assert len(regions) == 2 and (index == index[4, 4]).sum() == 1
+
+
+def test_build_regions_needs_a_region():
+    with pytest.raises(TpsvError):
+        build_regions(np.zeros((0, 0), np.int32))
+
+
+def test_patch_space_round_trip_at_pixel_centres():
+    regions, index = build_regions(two_labels())
+    patches = [r.patch for r in regions]
+    h, w = index.shape
+    yy, xx = np.mgrid[:h, :w]
+    xy = np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], 1)
+    region = index.ravel()
+    st = to_patch_space(patches, xy, region)
+    assert np.all((st >= 0) & (st <= 1))
+    assert np.abs(to_pixel_space(patches, region, st) - xy).max() < 1e-6
+
+
+def test_feature_positions_are_computed_once():
+    """edit.common.feature_xy and the lattice's feature positions are to_pixel_space."""
+    from tpsv.color import srgb_to_lab
+    from tpsv.encode.vectorize import build_geometry
+
+    labels = two_labels()
+    regions, _ = build_regions(labels)
+    rng = np.random.default_rng(2)
+    n = 40
+    f = Features(region=np.sort(rng.integers(0, len(regions), n)).astype(np.int32), st=rng.random((n, 2)),
+                 lab=np.zeros((n, 3), np.float32), kind=np.full(n, GRADATION, np.uint8), pair=np.full(n, -1, np.int32))
+    model = Model(width=labels.shape[1], height=labels.shape[0], regions=regions, features=f)
+    patches = [r.patch for r in regions]
+    assert np.array_equal(feature_xy(model), to_pixel_space(patches, f.region, f.st))
+    g = build_geometry(labels)
+    rgb = rng.random(labels.shape + (3,)).astype(np.float32)
+    fs = g.lattice(srgb_to_lab(rgb)).features(5.0)
+    assert np.array_equal(fs.xy, to_pixel_space([r.patch for r in g.regions], fs.region, fs.st))
+
+
+def test_region_borders_marks_both_sides():
+    index = np.array([[0, 0, 1],
+                      [0, 2, 1],
+                      [0, 0, 0]])
+    want = np.array([[0, 1, 1],
+                     [1, 1, 1],
+                     [0, 1, 1]], bool)
+    assert np.array_equal(region_borders(index), want)
+    assert not region_borders(np.zeros((3, 4), int)).any()

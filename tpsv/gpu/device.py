@@ -1,0 +1,205 @@
+"""A :class:`tpsv.tps.KernelSet` on a Warp device: its arrays, the structs the kernels take, host threads.
+
+The device arrays of one kernel set are grouped in three ``@wp.struct``
+types, each passed to the kernels as one parameter:
+
+* :class:`Systems`: what the solve reads (features, kernel slots, frames,
+  smoothing) and its float64 per-slot scratch;
+* :class:`Solution`: what the solve writes (local points, TPS weights ``w``
+  and affine part ``b`` in float64 and float32, status, colour range);
+* :class:`BlendArrays`: what the rasteriser reads (the region grids, fill
+  colours and the float32 half of the solution).
+
+Several structs share an array (``count``, ``pos32`` ...): they hold
+references, never copies.
+
+CPU bands: Warp's CPU launches run one thread each and release the GIL, so
+on the CPU device the solve kernels (other than the tile solve) and the
+rasteriser's pixel rows are split into bands launched from a few host
+threads (:func:`split_launch`); results do not depend on the split.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..tps import kernel_lambda
+from . import resolve_device
+from . import warp as _warp
+
+
+@wp.struct
+class Systems:
+    """Per kernel slot: what the solve reads, and its float64 scratch."""
+
+    index: wp.array2d(dtype=wp.int32)  # (n, K) feature of each slot; anchors in slots 0-2
+    count: wp.array(dtype=wp.int32)  # (n,) active slots
+    degen: wp.array(dtype=wp.int32)  # (n,) 1: degenerate kernel (affine fallback)
+    frame64: wp.array(dtype=wp.vec4d)  # (n,) (cS, cT, ax, ay): local = ((S - cS) ax, (T - cT) ay)
+    st: wp.array(dtype=wp.vec2d)  # (F,) feature (S, T)
+    lab: wp.array(dtype=wp.vec3f)  # (F,) feature Lab
+    lam: wp.array(dtype=wp.float64)  # (n,) smoothing in local units
+    vals: wp.array2d(dtype=wp.vec3d)  # (n, K) scratch: slot values
+    bary: wp.array2d(dtype=wp.vec3d)  # (n, K) scratch: barycentric coordinates w.r.t. the anchors
+    pa: wp.array2d(dtype=wp.vec3d)  # (n, K) scratch: anchor rows of Phi
+
+
+@wp.struct
+class Solution:
+    """Per kernel: the solved coefficients in its local frame."""
+
+    pts: wp.array2d(dtype=wp.vec2d)  # (n, K) local points (float32-rounded)
+    pos32: wp.array2d(dtype=wp.vec2f)  # (n, K) the same in float32
+    w64: wp.array2d(dtype=wp.vec3d)  # (n, K) TPS weights
+    w32: wp.array2d(dtype=wp.vec3f)
+    b64: wp.array2d(dtype=wp.vec3d)  # (n, 3) affine part: rows constant, u, v
+    b32: wp.array2d(dtype=wp.vec3f)
+    status: wp.array(dtype=wp.int32)  # (n,) 0 TPS, 1 degenerate (affine), 2 not finite (affine)
+    lo: wp.array(dtype=wp.vec3f)  # (n,) Lab range of the kernel's features
+    hi: wp.array(dtype=wp.vec3f)
+
+
+@wp.struct
+class BlendArrays:
+    """What the rasteriser reads: region grids, fill colours, blend half-width, float32 coefficients."""
+
+    grid: wp.array2d(dtype=wp.int32)  # (R, 3) cells along S, along T, first kernel
+    fill: wp.array(dtype=wp.vec3f)  # (R,) Lab of a region without features
+    half: float  # half-width of a kernel's support, in cells (0.5 + overlap)
+    count: wp.array(dtype=wp.int32)
+    frame32: wp.array(dtype=wp.vec4f)
+    pos32: wp.array2d(dtype=wp.vec2f)
+    w32: wp.array2d(dtype=wp.vec3f)
+    b32: wp.array2d(dtype=wp.vec3f)
+    lo: wp.array(dtype=wp.vec3f)
+    hi: wp.array(dtype=wp.vec3f)
+
+
+@dataclass
+class DeviceKernels:
+    """A :class:`tpsv.tps.KernelSet` on a device, with scratch and coefficients.
+
+    After :func:`tpsv.gpu.solve.solve`: ``solution.w64`` (n, K) vec3d and
+    ``solution.b64`` (n, 3) vec3d hold the float64 coefficients in each
+    kernel's local frame (rows of ``b``: constant, u, v), ``w32``/``b32``/
+    ``pos32`` the float32 copies used by the rasteriser, ``status`` 0 (TPS),
+    1 (degenerate, affine) or 2 (solve not finite, affine).
+    """
+
+    device: str
+    K: int
+    n_kernels: int
+    systems: Systems
+    solution: Solution
+    blend: BlendArrays
+    A: wp.array | None  # (n, K, K) float64: the projected systems (lower triangle), then their factors
+    rhs: wp.array  # (n, K, 3) float64: right-hand sides, then the solutions gamma
+    solved: bool = False
+
+
+def _struct(cls, **fields):
+    s = cls()
+    for name, value in fields.items():
+        setattr(s, name, value)
+    return s
+
+
+def upload(ks, device: str = "cpu") -> DeviceKernels:
+    """Copy a kernel set to ``device`` and allocate the solver's arrays.
+
+    Parameters
+    ----------
+    ks : tpsv.tps.KernelSet
+    device : str
+        Warp device (``cpu``, ``cuda``, ``cuda:N``).
+
+    Returns
+    -------
+    DeviceKernels
+        Not yet solved.
+    """
+    _warp()
+    device = resolve_device(device)
+    K = int(ks.kernel_size)
+    n = int(ks.n_kernels)
+    R = int(ks.grid.shape[0])
+    F = int(ks.st.shape[0])
+
+    def arr(a, dtype):
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+
+    def empty(shape, dtype):  # every entry the solver reads is written first
+        return wp.empty(shape, dtype=dtype, device=device)
+
+    count = arr(ks.count.astype(np.int32), wp.int32)
+    frame32 = arr(ks.frame.astype(np.float32).reshape(n, 4), wp.vec4f)
+    sol = _struct(
+        Solution,
+        pts=empty((n, K), wp.vec2d), pos32=empty((n, K), wp.vec2f),
+        w64=empty((n, K), wp.vec3d), w32=empty((n, K), wp.vec3f),
+        b64=empty((n, 3), wp.vec3d), b32=empty((n, 3), wp.vec3f),
+        status=empty(n, wp.int32), lo=empty(n, wp.vec3f), hi=empty(n, wp.vec3f),
+    )
+    systems = _struct(
+        Systems,
+        index=arr(ks.index.astype(np.int32).reshape(n, K), wp.int32),
+        count=count,
+        degen=arr(ks.degenerate.astype(np.int32), wp.int32),
+        frame64=arr(ks.frame.astype(np.float64).reshape(n, 4), wp.vec4d),
+        st=arr(ks.st.astype(np.float64).reshape(F, 2), wp.vec2d),
+        lab=arr(ks.lab.astype(np.float32).reshape(F, 3), wp.vec3f),
+        lam=arr(kernel_lambda(ks), wp.float64),
+        vals=empty((n, K), wp.vec3d), bary=empty((n, K), wp.vec3d), pa=empty((n, K), wp.vec3d),
+    )
+    blend = _struct(
+        BlendArrays,
+        grid=arr(ks.grid.astype(np.int32).reshape(R, 3), wp.int32),
+        fill=arr(ks.fill.astype(np.float32).reshape(R, 3), wp.vec3f),
+        half=0.5 + float(ks.overlap),
+        count=count, frame32=frame32,
+        pos32=sol.pos32, w32=sol.w32, b32=sol.b32, lo=sol.lo, hi=sol.hi,
+    )
+    return DeviceKernels(
+        device=device, K=K, n_kernels=n, systems=systems, solution=sol, blend=blend,
+        A=empty((n, K, K), wp.float64), rhs=empty((n, K, 3), wp.float64),
+    )
+
+
+def host_threads(device: str, threads: int | None) -> int:
+    """Host threads that launch bands on ``device``: 1 on CUDA; ``threads`` or every core on the CPU."""
+    if not device.startswith("cpu"):
+        return 1
+    if threads is None:
+        threads = os.cpu_count() or 1
+    return max(1, int(threads))
+
+
+def split_launch(device: str, n: int, threads: int | None, launch) -> None:
+    """Call ``launch(lo, hi)`` over ``[0, n)``: once on CUDA; in bands from host threads on the CPU.
+
+    Parameters
+    ----------
+    device : str
+    n : int
+        Extent of the launch's first dimension.
+    threads : int or None
+        Host threads on the CPU device (None: every core).
+    launch : callable
+        ``launch(lo, hi)`` launches the band ``[lo, hi)``; the kernel's
+        module must be loaded first (``wp.load_module``), so that no two
+        threads compile it.
+    """
+    nt = min(host_threads(device, threads), n)
+    if nt <= 1:
+        launch(0, n)
+        return
+    nb = nt * 4
+    edges = np.linspace(0, n, nb + 1).astype(int)
+    bands = [(int(edges[i]), int(edges[i + 1])) for i in range(nb) if edges[i + 1] > edges[i]]
+    with ThreadPoolExecutor(max_workers=nt) as pool:
+        list(pool.map(lambda b: launch(*b), bands))
