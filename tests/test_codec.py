@@ -9,6 +9,7 @@ import dataclasses
 import struct
 import time
 import zlib
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -68,7 +69,8 @@ def hand_model() -> Model:
         kind=np.array([1, 1, 0, 0, 1, 1], np.uint8),
         pair=np.array([1, 0, -1, -1, 5, 4], np.int32),
     )
-    params = Params(t_canny=37.5, t_super=12.25, kernel_size=48, overlap=0.25, smoothing=1e-6,
+    params = Params(t_canny=37.5, t_super=12.25, kernel_size=64, overlap=0.25, smoothing=1e-6,
+                    st_steps=16, l_step=1, ab_step=1,  # the finest steps, whatever Params() defaults to
                     extra={"seed": 7, "search": True, "source": "chelsea.png", "psnr": 27.125})
     return Model(width=31, height=21, regions=regions, features=features, params=params)
 
@@ -420,7 +422,7 @@ def models(draw) -> Model:
     extra = draw(st.dictionaries(st.text(min_size=1, max_size=10), extra_value, max_size=4))
     params = Params(
         t_canny=draw(st.floats(0, 1e3)), t_super=draw(st.floats(0, 1e3)),
-        kernel_size=draw(st.integers(1, 4096)), overlap=draw(st.floats(1e-6, 0.5)),
+        kernel_size=draw(st.sampled_from(layout.SUPPORTED_KERNEL_SIZES)), overlap=draw(st.floats(1e-6, 0.5)),
         smoothing=draw(st.floats(0, 1)), st_steps=draw(st.integers(1, 64)),
         l_step=draw(st.integers(1, 16)), ab_step=draw(st.integers(1, 16)), extra=extra,
     )
@@ -550,12 +552,13 @@ def test_payload_checksum():
 @pytest.mark.parametrize("fields, match", [
     ({"width": 0}, "width 0"),
     ({"height": 70000}, "height 70000"),
-    ({"width": 65535, "height": 65535}, "exceeds 268435456 pixels"),
-    ({"regions": 65536}, "65536 regions exceed"),
-    ({"polygons": 2**20 + 1}, "polygons exceed"),
-    ({"vertices": 2**26 + 1}, "vertices exceed"),
-    ({"ctrl_points": 2**22 + 1}, "control points exceed"),
-    ({"features": 2**26 + 1}, "features exceed"),
+    ({"width": 65535, "height": 65535}, "exceeds 67108864 pixels"),
+    ({"width": 8193, "height": 8192}, "exceeds 67108864 pixels"),
+    ({"regions": 4097}, "4097 regions exceed"),
+    ({"polygons": 8193}, "polygons exceed"),
+    ({"vertices": 2**19 + 1}, "vertices exceed"),
+    ({"ctrl_points": 2**18 + 1}, "control points exceed"),
+    ({"features": 2**20 + 1}, "features exceed"),
     ({"features": 2**32 - 1}, "features exceed"),
     ({"regions": 2}, "polygons for 2 regions"),
     ({"vertices": 2}, "2 vertices for 1 polygons"),
@@ -581,9 +584,12 @@ def test_zstd_bomb_rejected_quickly():
     reject(assemble(data, frames={"features": bomb}, features_raw=2**26), "exceeds the bound")
     # Declared small, but the frame says huge: refused before inflating.
     reject(assemble(data, frames={"features": bomb}), "zstd frame holds 67108864 bytes")
-    # Counts large enough for the size, but the stored bytes are too few.
-    huge = assemble(data, frames={"features": bomb}, features=2**23, features_raw=2**26)
-    reject(huge, "over 1024 times")
+    # Counts at their limits: the bound, not a ratio, caps what is inflated
+    # (12 MiB here), and the zeros are not one msgpack map.
+    raw = layout.raw_size_bounds(layout.Header(1, 0, 4, 4, 1, 1, 4, 4, codec.MAX_FEATURES, (1, 1, 1), (0, 0, 0)))[2]
+    flat = zstandard.ZstdCompressor(level=1, write_content_size=True).compress(bytes(raw))
+    huge = assemble(data, frames={"features": flat}, features=codec.MAX_FEATURES, features_raw=raw)
+    reject(huge, "section features: bad msgpack")
     assert time.perf_counter() - t0 < 2.0
 
 
@@ -745,6 +751,23 @@ def test_encoder_refuses_invalid_models(mutate, match):
         codec.encode(m)
 
 
+@pytest.mark.parametrize("extra, match", [
+    ({"s": "x" * 65537}, "longer than 65536"),
+    ({"": 1}, "1..256 characters"),
+    ({"k" * 257: 1}, "1..256 characters"),
+    ({f"k{i}": i for i in range(257)}, "257 extra items"),
+    ({"big": 2**64}, "64-bit range"),
+    ({"nan": float("nan")}, "not finite"),
+])
+def test_encoder_refuses_bad_extra_with_value_error(extra, match):
+    """Fuzz finding: these raised TpsvFormatError from encode, which documents ValueError."""
+    m = hand_model()
+    m.params.extra = extra
+    with pytest.raises(ValueError, match=match) as info:
+        codec.encode(m)
+    assert not isinstance(info.value, TpsvError)
+
+
 # ------------------------------------------------------------------ transforms
 
 
@@ -804,6 +827,150 @@ def test_save_error_leaves_nothing(tmp_path):
 
 def test_limits_are_exported():
     assert codec.MAX_FILE_BYTES == 256 * 2**20
-    assert codec.MAX_FEATURES == 2**26 and codec.MAX_REGIONS == 65535
+    assert codec.MAX_FEATURES == 2**20 and codec.MAX_REGIONS == 4096
     assert (codec.MIN_GRID, codec.MAX_GRID) == (2, 256)
-    assert codec.MAX_PIXELS == 2**28
+    assert codec.MAX_PIXELS == 2**26 and codec.MAX_SIDE == 65535
+    assert codec.SUPPORTED_KERNEL_SIZES == (8, 16, 32, 64, 128)
+
+
+# ------------------------------------------------------------------ re-encoding (issue 14)
+
+CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
+
+
+@pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
+def test_reencoding_a_sample_file_gives_its_bytes(path):
+    data = path.read_bytes()
+    assert codec.encode(codec.decode(data)) == data
+
+
+@pytest.mark.parametrize("make", MODELS, ids=lambda f: f.__name__)
+def test_reencoding_a_decoded_model_gives_its_bytes(make):
+    data = codec.encode(make())
+    assert codec.encode(codec.decode(data)) == data
+    assert codec.encode(codec.quantize(codec.decode(data))) == data
+
+
+@pytest.mark.parametrize("bits", [8, 11, 16])
+def test_foreign_st_bits_are_kept(bits):
+    """A file whose st_bits is not the encoder's choice (13 here) is not re-quantised."""
+    m = edge_model(n_pairs=50)
+    assert quant.from_model(m).st_bits != bits
+    q = quant.from_model(m)
+    top = 2**bits - 1
+    data = with_quantized(m, st_bits=bits, st=np.rint(q.st * top / (2**q.st_bits - 1)).astype(np.int64))
+    decoded = codec.decode(data)
+    assert decoded.encoding["st_bits"] == bits
+    again = codec.encode(decoded)
+    assert again == as_encoder_compresses(data)
+    assert_models_identical(codec.decode(again), decoded)
+
+
+def as_encoder_compresses(data: bytes) -> bytes:
+    """``data`` with its sections recompressed as the encoder does (the tests' files use level 3)."""
+    from tpsv.codec.container import ZSTD_LEVEL
+    cctx = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_content_size=True, write_checksum=False,
+                                    write_dict_id=False)
+    return assemble(data, frames={k: cctx.compress(v) for k, v in zip(layout.SECTIONS, raw_sections(data))})
+
+
+def test_kept_st_bits_follow_size_and_precision():
+    """A resized model, or one given another st_steps, is quantised afresh."""
+    data = with_quantized(tiny_model(), st_bits=16)
+    m = codec.decode(data)
+    assert quant.from_model(m).st_bits == 16
+    m.width = 2000
+    assert quant.from_model(m).st_bits == quant.st_bits_for(2000, m.height, m.params.st_steps)
+    m = codec.decode(data)
+    m.params.st_steps = 64
+    assert quant.from_model(m).st_bits == quant.st_bits_for(m.width, m.height, 64)
+    m = codec.decode(data)
+    m.encoding["st_bits"] = 17
+    with pytest.raises(ValueError, match="st_bits"):
+        codec.encode(m)
+
+
+def test_decoded_models_carry_their_encoding():
+    m = tiny_model()
+    d = codec.decode(codec.encode(m))
+    assert not m.encoding
+    assert d.encoding == {"st_bits": quant.from_model(m).st_bits, "st_bits_for": (4, 4, m.params.st_steps)}
+    assert "encoding" not in repr(d)
+    assert codec.quantize(d).encoding == d.encoding
+
+
+# ------------------------------------------------------------------ budgets (issue 14)
+
+
+def test_kernel_size_must_be_supported():
+    for k in codec.SUPPORTED_KERNEL_SIZES:
+        m = tiny_model()
+        m.params = Params(kernel_size=k)
+        assert codec.decode(codec.encode(m)).params.kernel_size == k
+    for k in (1, 3, 48, 129, 4096):
+        m = tiny_model()
+        m.params = Params(kernel_size=k)
+        with pytest.raises(ValueError, match="kernel_size"):
+            codec.encode(m)
+        q = quant.from_model(tiny_model())
+        reject(with_quantized(tiny_model(), params={**q.params, "kernel_size": k}), "kernel_size")
+
+
+def test_polygon_vertex_limit():
+    n = codec.MAX_POLYGON_VERTICES + 1
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    circle = np.stack([8 + 6 * np.cos(t), 8 + 6 * np.sin(t)], 1)
+    m = Model(16, 16, [Region(0, [circle], Patch(grid_ctrl(2, 2, 0, 0, 16, 16)))], Features.empty())
+    with pytest.raises(ValueError, match="at most 262144"):
+        codec.encode(m)
+    q = quant.from_model(m)
+    small = no_features_model()
+    fields = ("width", "height", "labels", "grid", "poly_counts", "vert_counts", "xy", "ctrl", "feature_counts")
+    reject(with_quantized(small, **{f: getattr(q, f) for f in fields}), "at most 262144")
+
+
+def test_smooth_grids_are_not_mistaken_for_bombs():
+    """A 256x256 affine grid compresses thousands of times; version 1's ratio rule refused it."""
+    region = Region(0, [square(0, 0, 64)], Patch(grid_ctrl(256, 256, 0, 0, 64, 64)))
+    m = Model(64, 64, [region], Features.empty())
+    data = codec.encode(m)
+    sizes = codec.section_sizes(data)
+    assert layout.parse_header(data).raw[1] > 1024 * sizes["regions"]
+    assert_models_identical(codec.decode(data), codec.quantize(m))
+
+
+def test_largest_inflation_is_bounded():
+    h = layout.Header(1, 0, 1, 1, codec.MAX_REGIONS, codec.MAX_POLYGONS, codec.MAX_VERTICES,
+                      codec.MAX_CTRL_POINTS, codec.MAX_FEATURES, (1, 1, 1), (0, 0, 0))
+    assert sum(layout.raw_size_bounds(h)) < 26 * 2**20
+
+
+def test_canvas_limit_admits_every_photo_tpsv_reads():
+    from tpsv import image
+    assert image.MAX_PIXELS <= codec.MAX_PIXELS
+    assert getattr(image, "MAX_SIDE", codec.MAX_SIDE) <= codec.MAX_SIDE
+
+
+def test_models_beyond_the_limits_are_the_users_error():
+    """Too large or an unsupported kernel_size: FormatLimitError, a ValueError the CLI shows as one line."""
+    m = no_features_model()
+    m.width, m.height = 8193, 8192
+    with pytest.raises(codec.FormatLimitError, match="8193x8192 exceeds 67108864 pixels") as info:
+        codec.encode(m)
+    assert isinstance(info.value, TpsvError) and isinstance(info.value, ValueError)
+    m = hand_model()
+    m.params.kernel_size = 48
+    with pytest.raises(codec.FormatLimitError, match="kernel_size = 48 not one of 8, 16, 32, 64, 128"):
+        codec.quantize(m)
+    n = codec.MAX_FEATURES + 1
+    f = Features(np.zeros(n, np.int32), np.full((n, 2), 0.5), np.zeros((n, 3), np.float32),
+                 np.zeros(n, np.uint8), np.full(n, -1, np.int32))
+    m = Model(4, 4, tiny_model().regions, f)
+    with pytest.raises(codec.FormatLimitError, match="1048577 features exceed the limit 1048576"):
+        codec.encode(m)
+    # other broken models stay plain ValueErrors (a program's mistake, not the user's)
+    m = hand_model()
+    m.features.st[0, 0] = np.nan
+    with pytest.raises(ValueError) as info:
+        codec.encode(m)
+    assert not isinstance(info.value, TpsvError)

@@ -15,7 +15,8 @@ from tpsv.geometry import patch
 from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import Patch
-from tpsv.render.raster import FRONT_KEY, draw_order, region_index, render
+from tpsv.render.pixelmap import FRONT_KEY, draw_order, region_index
+from tpsv.render.raster import render
 
 SHIFT = (8.0, -3.0)
 
@@ -261,3 +262,17 @@ def test_islands_are_carried_along(model):
     for p, q in zip(model.regions[DISC].outline, moved.regions[DISC].outline):
         assert patch.fold_free(moved.regions[DISC].patch)
         assert abs(q.mean(0) - phi(p).mean(0)).max() < 0.5
+
+
+def test_outlines_too_long_are_refused_before_any_work():
+    """A hostile zig-zag outline (a few kB in a file) once cost 5.8 GB and 51 s."""
+    import copy
+
+    from tpsv.edit import deform as df
+
+    m = copy.deepcopy(scene_model())
+    n = 4000
+    zig = np.column_stack([np.linspace(1, m.width - 1, n), np.where(np.arange(n) % 2 == 0, 1.0, m.height - 1.0)])
+    m.regions[0].outline = [zig] + list(m.regions[0].outline[1:])
+    with pytest.raises(TpsvError, match="outlines too long to deform"):
+        df.affine(m, 1, [[1.1, 0, 0], [0, 1.1, 0]])

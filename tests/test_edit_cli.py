@@ -5,13 +5,16 @@ from __future__ import annotations
 import json
 
 import cv2
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from editfixtures import BACKGROUND, DISC, PANEL, same_model, scene_model
 from tpsv import codec
-from tpsv.edit import crossmap, deform, recolor
+from tpsv.edit import crossmap, deform, recolor, stylize
+from tpsv.edit.common import clip_lab
 from tpsv.cli import main
+from tpsv.image import encode_png
 
 
 def run(*args, input=None):
@@ -52,6 +55,40 @@ def test_recolor_matches_library_and_renders(tmp_path, src):
     assert same_model(codec.load(out), want)
     assert s["bytes"] == out.stat().st_size and s["selected"] == int((m.features.region == DISC).sum())
     assert cv2.imread(str(png)).shape[:2] == (2 * m.height, 2 * m.width)
+
+
+def test_recolor_reports_the_template_it_used(tmp_path, src):
+    out = tmp_path / "h.tpsv"
+    r = run("recolor", src, "-o", out, "--color", "#d92619", "--tolerance", 60, "--hue", 30, "--harmonize", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    m = codec.load(src)
+    mask = recolor.select(m, color=(217 / 255, 38 / 255, 25 / 255), tolerance=60)
+    # the template fitted to the selection's colours after the hue step, as harmonize documents
+    pre = recolor.recolor_features(m, mask, hue=30)
+    name, rot, _ = recolor.harmonic_template(clip_lab(pre.features.lab[mask]), "auto")
+    assert (s["template"], s["rotation"]) == (name, rot)
+    assert s["selected"] == int(mask.sum()) > 0
+    want = recolor.recolor_features(m, mask, hue=30, harmonize="auto")
+    assert s["changed"] == int((want.features.lab != m.features.lab).any(axis=1).sum())
+    assert same_model(codec.load(out), codec.quantize(want))
+    # an empty selection still names the template harmonic_template gives for no colours
+    r = run("recolor", src, "-o", out, "--color", "#00ff00", "--tolerance", 0, "--harmonize", "X", "--json")
+    s = json.loads(r.stdout)
+    assert (s["selected"], s["changed"], s["template"]) == (0, 0, "X")
+    assert s["rotation"] == recolor.harmonic_template(np.zeros((0, 3)), "X")[1]
+
+
+def test_stylize_writes_the_library_image(tmp_path, src):
+    png, ab = tmp_path / "s.png", tmp_path / "s.tpsv"
+    r = run("stylize", src, "-o", png, "--level", 2, "--scale", 1.5, "--stroke-width", 2, "--abstract-out", ab,
+            "--json")
+    assert r.exit_code == 0, r.output
+    m = codec.load(src)
+    assert png.read_bytes() == encode_png(stylize.stylize(m, level=2, scale=1.5, stroke_width=2))
+    a = stylize.abstract(m, 2)
+    assert same_model(codec.load(ab), codec.quantize(a))
+    assert json.loads(r.stdout)["strokes"] == len(stylize.stroke_chains(a)) > 0
 
 
 def test_pipeline_through_stdin_and_stdout(tmp_path, src):

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from tpsv import metrics
+from tpsv.errors import TpsvError
 from tpsv.render.magnify import back_project, dense_model, magnify_raster
 from tpsv.render.raster import render
 
@@ -44,3 +46,23 @@ def test_magnify_raster_size_and_quality(small_rgb):
     assert big.shape == (2 * h, 2 * w, 3)
     down = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)
     assert metrics.psnr(small_rgb, down) > 35
+
+
+def test_dense_model_params_default():
+    from tpsv.model import Params
+    from tpsv.render.magnify import DENSE_PARAMS
+
+    model, _ = dense_model(np.full((6, 8, 3), 0.5, np.float32))
+    assert model.params == Params(**DENSE_PARAMS)
+    assert (model.params.kernel_size, model.params.overlap, model.params.l_step) == (32, 0.5, 1)
+
+
+def test_raster_magnify_beyond_one_render_is_refused_before_the_fit(monkeypatch):
+    from tpsv.render import magnify as mg
+
+    called = []
+    monkeypatch.setattr(mg, "dense_model", lambda *a, **k: called.append(1))
+    rgb = np.zeros((8, 8, 3), np.float32)
+    with pytest.raises(TpsvError, match="beyond tpsv's limit"):
+        mg.magnify_raster(rgb, (8193, 4097))
+    assert not called

@@ -224,3 +224,39 @@ def test_rasterize_every_pixel_assigned_with_gaps():
     for k in (1, 3, 5):
         idx = rasterize_regions([r[1] for r in regs], 40 * k, 40 * k, (40, 40))
         assert idx.min() >= 0 and idx.max() < len(regs)
+
+
+def test_fill_in_bands_is_identical_to_one_band(monkeypatch):
+    from tpsv.geometry import outline as ol
+
+    rng = np.random.default_rng(3)
+    polys = [rng.uniform(0, 60, (40, 2)), np.array([[10.0, 10], [50, 12], [30, 55]])]
+    whole = ol._fill_polys((64, 64), polys)
+    monkeypatch.setattr(ol, "FILL_CROSSINGS_PER_BAND", 7)
+    assert np.array_equal(ol._fill_polys((64, 64), polys), whole)
+    monkeypatch.setattr(ol, "FILL_CROSSINGS_PER_BAND", 1)  # a band is one row at least
+    assert np.array_equal(ol._fill_polys((64, 64), polys), whole)
+
+
+def test_fill_memory_does_not_scale_with_vertices_times_rows():
+    import tracemalloc
+
+    from tpsv.geometry import outline as ol
+
+    # a zig-zag whose 5000 edges each cross every row: 1e7 crossings (about 0.5 GB at once before)
+    n, h, w = 5_000, 2000, 2000
+    poly = np.column_stack([np.linspace(1, w - 1, n), np.where(np.arange(n) % 2 == 0, 1.0, h - 1.0)])
+    tracemalloc.start()
+    ol._fill_polys((h, w), [poly])
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 120 * 2**20
+
+
+def test_fill_refuses_absurdly_complex_outlines():
+    from tpsv.geometry import outline as ol
+
+    n, h, w = 20_000, 40, 40
+    poly = np.column_stack([np.linspace(1, w - 1, n), np.where(np.arange(n) % 2 == 0, 1.0, h - 1.0)])
+    with pytest.raises(TpsvError, match="outline too complex"):
+        ol._fill_polys((h, w), [poly])

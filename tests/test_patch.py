@@ -285,3 +285,37 @@ def test_new_patch_survives_codec_quantisation_exactly():
     q = np.round(p.ctrl * CTRL_SCALE) / CTRL_SCALE
     assert np.array_equal(q, p.ctrl)
     assert affine_frame(p) is not None
+
+
+def test_patch_pixel_scale_is_the_control_polygon_size():
+    from conftest import rect_patch
+
+    from tpsv.geometry.patch import MIN_SCALE_PX, patch_pixel_scale
+
+    assert patch_pixel_scale(rect_patch(3, 4, 40, 30)) == pytest.approx((40.0, 30.0))
+    assert patch_pixel_scale(rect_patch(3, 4, 40, 30, M=5, N=2)) == pytest.approx((40.0, 30.0))
+    flat = rect_patch(0, 0, 10, 0)
+    assert patch_pixel_scale(flat) == pytest.approx((10.0, MIN_SCALE_PX))
+
+
+def test_min_jacobian_matches_pointwise_sampling():
+    """The per-cell tensor evaluation equals sampling ``jacobian`` on both sides of every cell border."""
+    from tpsv.geometry import patch as hp
+    from tpsv.model import Patch
+
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        M, N = rng.integers(2, 8, 2)
+        ii, jj = np.meshgrid(np.arange(M), np.arange(N), indexing="ij")
+        ctrl = np.zeros((M, N, 4, 2))
+        ctrl[..., 0, 0] = ii * 10 + rng.normal(0, 3, (M, N))
+        ctrl[..., 0, 1] = jj * 10 + rng.normal(0, 3, (M, N))
+        ctrl[..., 1, :] = np.array([10.0, 0.0]) + rng.normal(0, 3, (M, N, 2))
+        ctrl[..., 2, :] = np.array([0.0, 10.0]) + rng.normal(0, 3, (M, N, 2))
+        p = Patch(ctrl=ctrl)
+        s = np.linspace(0, M - 1, 8 * (M - 1) + 1)
+        t = np.linspace(0, N - 1, 8 * (N - 1) + 1)
+        S, T = np.meshgrid(s, t, indexing="ij")
+        low = min(hp._det(hp.jacobian(p, S, T)).min(),
+                  hp._det(hp.jacobian(p, np.clip(S - 1e-9, 0, M - 1), np.clip(T - 1e-9, 0, N - 1))).min())
+        assert hp.min_jacobian(p) == pytest.approx(low, rel=1e-6, abs=1e-9)

@@ -5,10 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tpsv.render import raster as render
-from tpsv.tps import group as tps
+from tpsv import tps
 from tpsv.color import lab_to_srgb, srgb_to_lab
+from tpsv.edit import deform
+from tpsv.encode import fit
 from tpsv.errors import TpsvError
+from tpsv.geometry import outline
+from tpsv.render import raster as render
+from tpsv.render.pixelmap import region_index
 from tpsv.model import Features, Model, Params, Region
 
 from conftest import rect_patch
@@ -34,7 +38,8 @@ def rect_model(rects, feats, width, height, **params) -> Model:
         np.zeros(n, np.uint8),
         np.full(n, -1, np.int32),
     )
-    return Model(width, height, regions, F, Params(**params))
+    # the kernel size and overlap these tests were written for (the paper's), whatever Params() defaults to
+    return Model(width, height, regions, F, Params(**{"kernel_size": 64, "overlap": 0.5, **params}))
 
 
 def field_rgb(x, y):
@@ -266,3 +271,19 @@ def test_range_clamp():
     assert same.mean() > 0.1
     # still continuous: no jump larger than the step between the two sides allows
     assert np.abs(np.diff(cl, axis=1)).max() < 20
+
+
+def test_fit_sees_the_rendered_pixels_of_a_deformed_model(smooth_model):
+    """Overlapping regions after a deform: the fit's pixel maps follow the draw order, so the
+    fit's design matrix predicts the render at every pixel."""
+    m = deform.affine(smooth_model, 1, [1, 0, -10, 0, 1, 0])  # region 1 slides over region 0, on top
+    index, st = fit.pixel_maps(m)
+    plain = outline.rasterize_regions(m.regions, m.width, m.height, src_size=(m.width, m.height))
+    assert ((plain == 0) & (index == 1)).sum() > 100  # pixels that only the draw order gives to region 1
+    assert np.array_equal(index, region_index(m, m.width, m.height))
+    ks = tps.group_kernels(m)
+    inside = index.ravel() >= 0
+    des, _ = fit.build_design(ks, index.ravel()[inside], st.reshape(-1, 2)[inside].astype(np.float64))
+    predicted = lab_to_srgb(des.forward(ks.lab.astype(np.float64)))
+    rendered = render.render(m, clamp=False).reshape(-1, 3)[inside]
+    assert np.abs(predicted - rendered).max() < 1e-3

@@ -102,3 +102,29 @@ def test_errors_and_input_untouched():
         stylize.abstract(m, 1.5)
     with pytest.raises(TpsvError, match="width"):
         stylize.stylize(m, stroke_width=0)
+
+
+def test_linking_a_pile_of_coincident_features_is_bounded():
+    """A 745-byte file with one curvilinear feature repeated 50,000 times once asked for 17 GB."""
+    import tracemalloc
+
+    from tpsv.edit.stylize import MAX_LINK_NEIGHBOURS, _near_pairs
+
+    xy = np.concatenate([np.zeros((20_000, 2)), np.random.default_rng(0).normal(0, 0.01, (5_000, 2))])
+    tracemalloc.start()
+    pairs = _near_pairs(xy, 2.0)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 200 * 2**20
+    assert len(pairs) <= len(xy) * (MAX_LINK_NEIGHBOURS + 1)
+    assert np.all(pairs[:, 0] < pairs[:, 1])
+
+
+def test_near_pairs_equal_query_pairs_for_ordinary_density():
+    from scipy.spatial import cKDTree
+
+    from tpsv.edit.stylize import _near_pairs
+
+    xy = np.random.default_rng(1).uniform(0, 60, (3000, 2))
+    ref = np.unique(np.sort(cKDTree(xy).query_pairs(2.0, output_type="ndarray"), axis=1), axis=0)
+    assert np.array_equal(_near_pairs(xy, 2.0), ref)

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.interpolate import RBFInterpolator
 
-from tpsv.tps import group as tps
+from tpsv import codec, tps
+from tpsv.tps import blend
 from tpsv.errors import TpsvError
 from tpsv.gpu import tps as gtps
 from tpsv.model import Features, Model, Params, Region
@@ -25,7 +28,8 @@ def rect_model(rects, feats, width, height, **params) -> Model:
     lab = np.concatenate([v for _, _, v in feats]).astype(np.float32) if feats else np.zeros((0, 3), np.float32)
     n = len(reg)
     F = Features(reg, st.astype(np.float64), lab, np.zeros(n, np.uint8), np.full(n, -1, np.int32))
-    return Model(width, height, regions, F, Params(**params))
+    # the kernel size and overlap these tests were written for (the paper's), whatever Params() defaults to
+    return Model(width, height, regions, F, Params(**{"kernel_size": 64, "overlap": 0.5, **params}))
 
 
 def one_region(st, values, w=40.0, h=30.0, **params) -> Model:
@@ -120,7 +124,7 @@ def test_side_conditions(random_kernel):
     assert np.abs(w[0, :m].T @ pts[0, :m]).max() < 1e-6
 
 
-@pytest.mark.parametrize("K", [20, 64])
+@pytest.mark.parametrize("K", [16, 64])
 def test_smoothing_matches_rbf(K):
     rng = np.random.default_rng(2)
     st = rng.random((K, 2))
@@ -201,6 +205,39 @@ def test_duplicates_are_merged():
     assert gtps.coefficients(dk)[3][0] == 0
     out = gtps.eval_points(dk, 0, st[:3])
     assert np.abs(out - (val[:3] + val[20:]) / 2).max() < 1e-3
+
+
+def test_duplicate_groups_pinned():
+    """One merge of coincident features serves grouping, recolouring and the fit's spread, bit for bit."""
+    rng = np.random.default_rng(5)
+    st0 = rng.random((12, 2))
+    # region 0: features 12 and 13 repeat 2, feature 14 repeats 5; region 1 holds 2's position too (not merged)
+    st = np.vstack([st0, st0[[2, 2, 5]], st0[[2]], rng.random((6, 2))])
+    reg = np.array([0] * 15 + [1] * 7)
+    val = (rng.random((22, 3)) * 60).astype(np.float32)
+    m = rect_model([(0, 0, 20, 16), (20, 0, 20, 16)], [(r, st[reg == r], val[reg == r]) for r in (0, 1)], 40, 16)
+    dup = tps.Duplicates.of_features(m.features)
+    assert np.array_equal(np.flatnonzero(~dup.keep), [12, 13, 14])
+    merged = dup.merge_lab(m.features.lab)
+    want = val.copy()
+    want[2] = (val[[2, 12, 13]].astype(np.float64).sum(0) / 3).astype(np.float32)
+    want[5] = (val[[5, 14]].astype(np.float64).sum(0) / 2).astype(np.float32)
+    assert np.array_equal(merged, want)
+    assert np.array_equal(dup.fill(merged), want[dup.keep].astype(np.float64).mean(0))
+    spread = dup.spread(merged)
+    assert np.array_equal(spread[[12, 13, 14]], merged[[2, 2, 5]]) and np.array_equal(spread[:12], merged[:12])
+    # the grouping uses exactly these groups: representatives only, with the merged colours
+    ks = tps.group_kernels(m)
+    assert np.array_equal(ks.lab, merged) and not np.isin([12, 13, 14], ks.index).any()
+    assert np.array_equal(ks.fill[0], dup.fill(merged).astype(np.float32))
+    # recolouring a kernel set equals grouping the recoloured model
+    new = replace(m, features=replace(m.features, lab=(val[::-1] + 1.0).astype(np.float32)))
+    a, b = tps.recolor(ks, new.features), tps.group_kernels(new)
+    for name in ("lab", "fill", "index", "frame"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    # no duplicates: nothing to merge or spread
+    single = tps.Duplicates.of_features(replace(m.features, st=st + np.arange(22)[:, None] * 1e-3))
+    assert single.keep.all() and np.array_equal(single.spread(val), val)
 
 
 # --------------------------------------------------------------------------- grouping
@@ -289,6 +326,11 @@ def test_group_validates_params():
     m = one_region(np.random.default_rng(0).random((10, 2)), np.zeros((10, 3)))
     with pytest.raises(TpsvError):
         tps.group_kernels(m, kernel_size=2)
+    # only the sizes the decoder accepts (each is a separately compiled Warp kernel)
+    with pytest.raises(TpsvError, match="kernel size 20 is not one tpsv renders"):
+        tps.group_kernels(m, kernel_size=20)
+    for K in codec.SUPPORTED_KERNEL_SIZES:
+        assert tps.group_kernels(m, kernel_size=K).kernel_size == K
     with pytest.raises(TpsvError):
         tps.group_kernels(m, overlap=0.7)
     with pytest.raises(TpsvError):
@@ -331,7 +373,7 @@ def test_weight_vanishes_at_support_border(overlap):
         a = np.linspace(i + 0.5 - half + 1e-6, i + 0.5 + half - 1e-6, 101)
         assert (tps.bump((a - (i + 0.5)) / half) > 0).all()
     # and the normalised blend weight of a kernel goes to zero continuously at its border
-    _, _, wi, wj = tps._axis_cover(np.array([2.0 + overlap - 1e-9, 2.0 + overlap + 1e-9]), g, overlap)
+    _, _, wi, wj = blend._axis_cover(np.array([2.0 + overlap - 1e-9, 2.0 + overlap + 1e-9]), g, overlap)
     assert np.all(np.minimum(wi, wj) < 1e-12 + 1e-3 * overlap)
 
 

@@ -1,42 +1,558 @@
-"""Reading and writing raster images and label maps, with clear errors."""
+"""Reading and writing raster images and label maps, safely and with clear errors.
+
+Reading has two steps. :func:`read_header` identifies the format by its magic
+bytes and reads the size, bit depth, channels, frame count and (JPEG) EXIF
+orientation in pure Python, so every budget is checked before OpenCV sees the
+data: a 2 KB PNG declaring 60000x60000 pixels is refused at once instead of
+after gigabytes of allocation. Only then OpenCV decodes, with its own log and
+the C libraries' messages (libpng, libjpeg) kept off stderr for the call, so a
+failure reaches the user as one line.
+
+Formats read: PNG, JPEG, WebP, TIFF (classic and BigTIFF), BMP and PNM
+(P1-P6). Others are refused by name even where OpenCV could decode them
+(GIF, AVIF, JPEG 2000, ...): each extra decoder is attack surface, and the
+budgets need a header this module can read. Multi-frame files (animated PNG or
+WebP, multi-page TIFF) give their first frame.
+
+Budgets
+-------
+``MAX_PIXELS`` (40 Mpx)
+    Admits a 24 Mpx (6000x4000) camera photo with margin; the pipeline's
+    memory grows with pixels, so larger inputs are likely mistakes or attacks.
+``MAX_SIDE`` (65535 px)
+    The largest side a .tpsv file can store (and within OpenCV's own limit).
+``MAX_FILE_BYTES`` (512 MiB)
+    Bounds the read; every legitimate file within ``MAX_PIXELS`` (even an
+    uncompressed 16-bit TIFF or a plain-text PNM) is smaller.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
+import struct
+import sys
+import zlib
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from cv2.utils import logging as cv_logging
 
+from .codec.layout import MAX_SIDE
 from .errors import TpsvError
 from .fileio import read_bytes, write_bytes_atomic
 
-#: Largest raster we accept (pixels); decoding more is a likely mistake or attack.
-MAX_PIXELS = 64 * 1024 * 1024
+#: Largest raster we accept (pixels): a 24 Mpx camera photo fits with margin.
+MAX_PIXELS = 40_000_000
+#: Largest image file we read (bytes).
+MAX_FILE_BYTES = 512 * 1024 * 1024
+#: The formats :func:`read_header` understands, as named in messages.
+FORMATS = ("PNG", "JPEG", "WebP", "TIFF", "BMP", "PNM")
+
+# Header walks stop after this many chunks/markers/IFDs: real files need a few
+# dozen, and a hostile file of millions of tiny chunks must not cost seconds.
+_MAX_WALK = 1000
 
 
-def _decode(path: str | os.PathLike, flags: int) -> np.ndarray:
+@dataclass(frozen=True)
+class ImageHeader:
+    """What an image file's header says, read without decoding pixels.
+
+    Attributes
+    ----------
+    format : str
+        One of :data:`FORMATS`.
+    width, height : int
+        Stored size in pixels (before EXIF orientation).
+    bit_depth : int
+        Bits per sample (PNG bit depth, JPEG precision, largest TIFF
+        BitsPerSample, 8 or 16 for PNM by its maximum value, 8 for BMP and WebP).
+    channels : int or None
+        Samples per pixel after palette expansion, where the header says it.
+    sample_format : str
+        ``"uint"``, ``"int"`` or ``"float"`` (TIFF SampleFormat; ``"uint"`` elsewhere).
+    palette : bool
+        Pixels are palette indices (PNG colour type 3, BMP of <= 8 bits).
+    frames : int
+        Frame or page count where cheap to find (APNG acTL, animated WebP ANMF
+        chunks, TIFF IFD chain); 1 otherwise.
+    orientation : int
+        EXIF orientation 1..8 of a JPEG (1, upright, elsewhere or when absent).
+    truncated : bool
+        The data visibly ends early (a JPEG with no end marker after its scan).
+    """
+
+    format: str
+    width: int
+    height: int
+    bit_depth: int = 8
+    channels: int | None = None
+    sample_format: str = "uint"
+    palette: bool = False
+    frames: int = 1
+    orientation: int = 1
+    truncated: bool = False
+
+    @property
+    def upright_size(self) -> tuple[int, int]:
+        """``(width, height)`` as displayed, after EXIF orientation."""
+        if self.orientation >= 5:  # orientations 5..8 swap the axes
+            return self.height, self.width
+        return self.width, self.height
+
+
+class _Corrupt(Exception):
+    """A truncated or inconsistent header; :func:`read_header` adds path and format."""
+
+
+def _unpack(fmt: str, data: bytes, offset: int) -> tuple:
+    # struct.error (short data) and negative offsets both mean a broken header.
+    if offset < 0:
+        raise _Corrupt
     try:
-        data = read_bytes(path)
+        return struct.unpack_from(fmt, data, offset)
+    except struct.error:
+        raise _Corrupt from None
+
+
+# --------------------------------------------------------------------------- PNG
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# Allowed bit depths and channels (after palette expansion) of each colour type.
+_PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}
+
+
+def _png_header(data: bytes) -> ImageHeader:
+    length, kind = _unpack(">I4s", data, 8)
+    if kind != b"IHDR" or length != 13:
+        raise _Corrupt
+    width, height, depth, colour, compression, filtering, interlace = _unpack(">IIBBBBB", data, 16)
+    (crc,) = _unpack(">I", data, 29)
+    if crc != zlib.crc32(data[12:29]):
+        raise _Corrupt
+    if depth not in _PNG_DEPTHS.get(colour, ()) or compression or filtering or interlace > 1:
+        raise _Corrupt
+    if not (0 < width < 2**31 and 0 < height < 2**31):
+        raise _Corrupt
+    return ImageHeader("PNG", width, height, depth, _PNG_CHANNELS[colour], palette=colour == 3,
+                       frames=_png_frames(data))
+
+
+def _png_frames(data: bytes) -> int:
+    """Frame count of an APNG (acTL comes before the first IDAT), else 1."""
+    pos = 33
+    for _ in range(_MAX_WALK):
+        if pos + 8 > len(data):
+            break
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        if kind == b"acTL" and length >= 4 and pos + 12 <= len(data):
+            return max(1, struct.unpack_from(">I", data, pos + 8)[0])
+        if kind in (b"IDAT", b"IEND"):
+            break
+        pos += 12 + length
+    return 1
+
+
+# --------------------------------------------------------------------------- JPEG
+
+# Start-of-frame markers (all coding processes); C4 DHT, C8 JPG and CC DAC are not.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+# Markers without a length field.
+_JPEG_STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
+
+
+def _jpeg_segments(data: bytes, pos: int):
+    """Yield ``(marker, payload offset, payload length)`` from ``pos`` up to SOS."""
+    for _ in range(_MAX_WALK):
+        if data[pos] != 0xFF:
+            raise _Corrupt
+        while data[pos] == 0xFF:  # fill bytes may precede a marker
+            pos += 1
+        marker = data[pos]
+        pos += 1
+        if marker in _JPEG_STANDALONE:
+            continue
+        if marker in (0xD8, 0xD9):  # SOI or EOI before the scan
+            raise _Corrupt
+        (length,) = _unpack(">H", data, pos)
+        if length < 2 or pos + length > len(data):
+            raise _Corrupt
+        yield marker, pos + 2, length - 2
+        if marker == 0xDA:
+            return
+        pos += length
+    raise _Corrupt
+
+
+def _jpeg_header(data: bytes) -> ImageHeader:
+    orientation, frame = 1, None
+    try:
+        for marker, at, size in _jpeg_segments(data, 2):
+            if marker == 0xE1 and frame is None and data[at:at + 6] == b"Exif\0\0":
+                orientation = _exif_orientation(data[at + 6:at + size])
+            elif marker in _JPEG_SOF and frame is None:
+                if size < 6:
+                    raise _Corrupt
+                frame = _unpack(">BHHB", data, at)
+            elif marker == 0xDA:
+                if frame is None:  # a scan before any frame header
+                    raise _Corrupt
+                # Entropy-coded data never holds FF D9 (FF is stuffed), so a
+                # missing end marker after the scan means a truncated file.
+                truncated = data.find(b"\xff\xd9", at + size) < 0
+                break
+        else:
+            raise _Corrupt  # no scan at all
+    except IndexError:
+        raise _Corrupt from None
+    precision, height, width, components = frame
+    if width == 0 or height == 0 or components not in (1, 3, 4) or precision not in (8, 12, 16):
+        raise _Corrupt  # height 0 (size given later by DNL) is not supported by the decoder either
+    return ImageHeader("JPEG", width, height, precision, 3 if components > 1 else 1,
+                       orientation=orientation, truncated=truncated)
+
+
+def _exif_orientation(tiff: bytes) -> int:
+    """Orientation tag of EXIF IFD0; 1 when absent or unreadable.
+
+    A broken EXIF block is common in real photos and does not stop decoding,
+    so it never makes the image unreadable here either.
+    """
+    try:
+        order, ifd0, big = _tiff_start(tiff)
+        tags, _ = _tiff_ifd(tiff, order, ifd0, big)
+    except _Corrupt:
+        return 1
+    value = tags.get(0x0112, (1,))[0]
+    return value if 1 <= value <= 8 else 1
+
+
+# --------------------------------------------------------------------------- TIFF
+
+_TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
+# struct codes of the integer field types (BYTE, SHORT, LONG, LONG8 and signed).
+_TIFF_INT = {1: "B", 3: "H", 4: "I", 16: "Q", 6: "b", 8: "h", 9: "i", 17: "q"}
+# Tags read: size, BitsPerSample, SamplesPerPixel, SampleFormat, Orientation, tile size.
+_TIFF_TAGS = frozenset([256, 257, 258, 277, 339, 0x0112, 322, 323])
+
+
+def _tiff_start(data: bytes) -> tuple[str, int, bool]:
+    """Byte order, offset of IFD0 and whether the file is a BigTIFF."""
+    order = {b"II": "<", b"MM": ">"}.get(data[:2])
+    if order is None:
+        raise _Corrupt
+    (version,) = _unpack(order + "H", data, 2)
+    if version == 42:
+        return order, _unpack(order + "I", data, 4)[0], False
+    if version == 43 and _unpack(order + "HH", data, 4) == (8, 0):
+        return order, _unpack(order + "Q", data, 8)[0], True
+    raise _Corrupt
+
+
+def _tiff_ifd(data: bytes, order: str, offset: int, big: bool) -> tuple[dict[int, tuple[int, ...]], int]:
+    """Integer values of the wanted tags of the IFD at ``offset``, and the next IFD's offset."""
+    count_fmt, long_fmt, entry_size, inline = ("Q", "Q", 20, 8) if big else ("H", "I", 12, 4)
+    (n,) = _unpack(order + count_fmt, data, offset)
+    if n == 0 or n > 4096:
+        raise _Corrupt
+    first = offset + (8 if big else 2)
+    tags = {}
+    for e in range(first, first + n * entry_size, entry_size):
+        tag, kind = _unpack(order + "HH", data, e)
+        (count,) = _unpack(order + long_fmt, data, e + 4)
+        code = _TIFF_INT.get(kind)
+        if tag not in _TIFF_TAGS or code is None:
+            continue
+        if not 1 <= count <= 64:  # per-sample tags; more samples than this is hostile
+            raise _Corrupt
+        at = e + 4 + inline
+        if count * struct.calcsize(code) > inline:  # values stored elsewhere
+            (at,) = _unpack(order + long_fmt, data, at)
+        tags[tag] = _unpack(f"{order}{count}{code}", data, at)
+    (next_ifd,) = _unpack(order + long_fmt, data, first + n * entry_size)
+    return tags, next_ifd
+
+
+def _tiff_header(data: bytes) -> ImageHeader:
+    order, ifd0, big = _tiff_start(data)
+    tags, next_ifd = _tiff_ifd(data, order, ifd0, big)
+    if 256 not in tags or 257 not in tags:
+        raise _Corrupt
+    width, height = tags[256][0], tags[257][0]
+    bits = max(tags.get(258, (1,)))
+    samples = tags.get(277, (1,))[0]
+    formats = set(tags.get(339, (1,)))
+    tile = tags.get(322, (0,))[0] * tags.get(323, (0,))[0]
+    if width <= 0 or height <= 0 or bits <= 0 or samples <= 0 or tile < 0 or tile > MAX_PIXELS:
+        raise _Corrupt
+    sample_format = "float" if 3 in formats else "int" if 2 in formats else "uint"
+    return ImageHeader("TIFF", width, height, bits, samples, sample_format,
+                       frames=_tiff_frames(data, order, next_ifd, big))
+
+
+def _tiff_frames(data: bytes, order: str, offset: int, big: bool) -> int:
+    """Pages counted along the IFD chain (cycles and broken links end the count)."""
+    seen, frames = set(), 1
+    while offset and offset not in seen and len(seen) < _MAX_WALK:
+        seen.add(offset)
+        try:
+            _, offset = _tiff_ifd(data, order, offset, big)
+        except _Corrupt:
+            break  # only page 1 is decoded; a broken later page does not matter
+        frames += 1
+    return frames
+
+
+# --------------------------------------------------------------------------- WebP
+
+
+def _webp_header(data: bytes) -> ImageHeader:
+    kind, size = _unpack("<4sI", data, 12)
+    if kind == b"VP8 ":
+        tag, start, width, height = _unpack("<3s3sHH", data, 20)
+        if tag[0] & 1 or start != b"\x9d\x01\x2a":  # must be a key frame
+            raise _Corrupt
+        width, height, channels, frames = width & 0x3FFF, height & 0x3FFF, 3, 1
+    elif kind == b"VP8L":
+        signature, bits = _unpack("<BI", data, 20)
+        if signature != 0x2F or bits >> 29:  # version must be 0
+            raise _Corrupt
+        width, height = (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+        channels, frames = 4 if bits >> 28 & 1 else 3, 1
+    elif kind == b"VP8X":
+        flags, w3, h3 = _unpack("<B3x3s3s", data, 20)
+        if size < 10:
+            raise _Corrupt
+        width = 1 + int.from_bytes(w3, "little")
+        height = 1 + int.from_bytes(h3, "little")
+        channels = 4 if flags & 0x10 else 3
+        frames = _webp_frames(data, 20 + size + (size & 1)) if flags & 0x02 else 1
+    else:
+        raise _Corrupt
+    if width == 0 or height == 0:
+        raise _Corrupt
+    return ImageHeader("WebP", width, height, 8, channels, frames=frames)
+
+
+def _webp_frames(data: bytes, pos: int) -> int:
+    """ANMF chunks counted from ``pos`` (at least 1)."""
+    frames = 0
+    for _ in range(_MAX_WALK):
+        if pos + 8 > len(data):
+            break
+        kind, size = struct.unpack_from("<4sI", data, pos)
+        frames += kind == b"ANMF"
+        pos += 8 + size + (size & 1)  # chunks are padded to even length
+    return max(frames, 1)
+
+
+# --------------------------------------------------------------------------- BMP and PNM
+
+
+def _bmp_header(data: bytes) -> ImageHeader:
+    (dib,) = _unpack("<I", data, 14)
+    if dib == 12:  # OS/2 BITMAPCOREHEADER: 16-bit unsigned sizes
+        width, height, planes, bpp = _unpack("<HHHH", data, 18)
+    elif dib in (16, 40, 52, 56, 64, 108, 124):
+        width, height, planes, bpp = _unpack("<iiHH", data, 18)
+        height = abs(height)  # negative: rows stored top-down
+    else:
+        raise _Corrupt
+    if width <= 0 or height == 0 or planes != 1 or bpp not in (1, 4, 8, 16, 24, 32):
+        raise _Corrupt
+    return ImageHeader("BMP", width, height, 8, 4 if bpp == 32 else 3, palette=bpp <= 8)
+
+
+# Whitespace and comments, then one decimal number (PNM header fields).
+_PNM_FIELD = re.compile(rb"(?:\s|#[^\r\n]*[\r\n])+(\d{1,10})")
+
+
+def _pnm_header(data: bytes) -> ImageHeader:
+    kind = data[1] - ord("0")
+    bitmap = kind in (1, 4)
+    fields, pos = [], 2
+    for _ in range(2 if bitmap else 3):
+        m = _PNM_FIELD.match(data, pos, pos + 4096)  # comments are short in real files
+        if m is None:
+            raise _Corrupt
+        fields.append(int(m.group(1)))
+        pos = m.end()
+    if pos >= len(data) or not data[pos:pos + 1].isspace():
+        raise _Corrupt  # one whitespace byte separates the header from the raster
+    width, height = fields[:2]
+    maxval = 1 if bitmap else fields[2]
+    if width == 0 or height == 0 or not 0 < maxval < 65536:
+        raise _Corrupt
+    depth = 1 if bitmap else 8 if maxval < 256 else 16
+    return ImageHeader("PNM", width, height, depth, 3 if kind in (3, 6) else 1)
+
+
+# --------------------------------------------------------------------------- header entry point
+
+
+def _sniff(data: bytes) -> str | None:
+    """Format named by the magic bytes, or None."""
+    if data.startswith(_PNG_SIGNATURE):
+        return "PNG"
+    if data.startswith(b"\xff\xd8"):
+        return "JPEG"
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return "WebP"
+    if data[:4] in _TIFF_MAGIC:
+        return "TIFF"
+    if data.startswith(b"BM"):
+        return "BMP"
+    if re.match(rb"P[1-6][\s#]", data[:3]):
+        return "PNM"
+    return None
+
+
+_READERS = {"PNG": _png_header, "JPEG": _jpeg_header, "WebP": _webp_header,
+            "TIFF": _tiff_header, "BMP": _bmp_header, "PNM": _pnm_header}
+
+
+def read_header(data: bytes, path: str | os.PathLike = "-") -> ImageHeader:
+    """Read an image file's header without decoding any pixel.
+
+    Parameters
+    ----------
+    data : bytes
+        The file's content (or at least its header).
+    path : str or path-like
+        Name used in error messages.
+
+    Returns
+    -------
+    header : ImageHeader
+
+    Raises
+    ------
+    TpsvError
+        "PATH: unsupported image format; ..." for anything but PNG, JPEG, WebP,
+        TIFF, BMP and PNM; "PATH: truncated or corrupt FORMAT header" for a
+        header that ends early or contradicts itself (including zero sizes).
+    """
+    fmt = _sniff(data)
+    if fmt is None:
+        raise TpsvError(f"{path}: unsupported image format; tpsv reads PNG, JPEG, WebP, TIFF, BMP and PNM")
+    try:
+        return _READERS[fmt](data)
+    except (_Corrupt, IndexError):
+        raise TpsvError(f"{path}: truncated or corrupt {fmt} header") from None
+
+
+# --------------------------------------------------------------------------- budgets and decoding
+
+
+def _check_budget(header: ImageHeader, path, max_bits: int) -> None:
+    """Refuse, from the header alone, what is too large or of a depth we do not read."""
+    width, height = header.upright_size
+    if width * height > MAX_PIXELS:
+        raise TpsvError(f"{path} is {width}x{height} px; tpsv accepts at most {MAX_PIXELS} px")
+    if max(width, height) > MAX_SIDE:
+        raise TpsvError(f"{path} is {width}x{height} px; tpsv accepts at most {MAX_SIDE} px per side")
+    if header.sample_format == "float":
+        raise TpsvError(f"{path}: {header.bit_depth}-bit floating-point image; tpsv reads 8-bit images only")
+    if header.sample_format == "int":
+        raise TpsvError(f"{path}: {header.bit_depth}-bit signed image; tpsv reads 8-bit images only")
+    if header.bit_depth > max_bits:
+        raise TpsvError(f"{path}: {header.bit_depth}-bit image; tpsv reads 8-bit images only")
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Keep OpenCV's log and the C libraries' direct prints off stderr for one call.
+
+    OpenCV's log level is restored afterwards. libpng and libjpeg write to file
+    descriptor 2 themselves, so that descriptor points at the null device
+    meanwhile (another thread's stderr output in that window is lost too; the
+    CLI decodes before it starts any).
+    """
+    level = cv_logging.getLogLevel()
+    cv_logging.setLogLevel(cv_logging.LOG_LEVEL_SILENT)
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all: nothing to protect
+        saved = None
+    try:
+        if saved is not None:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+        yield
+    finally:
+        if saved is not None:
+            os.dup2(saved, 2)
+            os.close(saved)
+        cv_logging.setLogLevel(level)
+
+
+def _upright(img: np.ndarray, orientation: int) -> np.ndarray:
+    """Apply EXIF orientation 2..8 (flip and/or rotate) to a decoded array."""
+    ops = {
+        2: lambda a: a[:, ::-1],
+        3: lambda a: a[::-1, ::-1],
+        4: lambda a: a[::-1],
+        5: lambda a: a.swapaxes(0, 1),
+        6: lambda a: np.rot90(a, -1),
+        7: lambda a: a[::-1, ::-1].swapaxes(0, 1),
+        8: lambda a: np.rot90(a, 1),
+    }
+    if orientation not in ops:
+        return img
+    return np.ascontiguousarray(ops[orientation](img))
+
+
+def _read_file(path: str | os.PathLike) -> bytes:
+    try:
+        data = read_bytes(path, limit=MAX_FILE_BYTES)
     except OSError as exc:
         raise TpsvError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if not data:
         raise TpsvError(f"{path}: empty file")
-    buf = np.frombuffer(data, np.uint8)
-    img = cv2.imdecode(buf, flags)
-    if img is None:
-        raise TpsvError(f"{path}: not an image OpenCV can decode")
-    if img.shape[0] * img.shape[1] > MAX_PIXELS:
-        raise TpsvError(f"{path}: image of {img.shape[1]}x{img.shape[0]} is too large")
-    return img
+    return data
+
+
+def _open(path: str | os.PathLike, max_bits: int) -> tuple[bytes, ImageHeader]:
+    """The file's bytes and its header, checked against the budgets."""
+    data = _read_file(path)
+    header = read_header(data, path)
+    _check_budget(header, path, max_bits)
+    return data, header
+
+
+def _decode(data: bytes, header: ImageHeader, path, flags: int) -> np.ndarray:
+    """Decode quietly with OpenCV and put upright; one line for any failure."""
+    if header.truncated:
+        raise TpsvError(f"{path}: truncated or corrupt {header.format} data")
+    with _quiet_stderr():
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+        except cv2.error:
+            img = None
+    # A decoder that disagrees with the header read something else than we checked.
+    if img is None or img.shape[:2] != (header.height, header.width):
+        raise TpsvError(f"{path}: truncated or corrupt {header.format} data")
+    return _upright(img, header.orientation)
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an 8-bit grey or RGB photo.
 
+    The header is read first and checked (size at most :data:`MAX_PIXELS`,
+    8 bits per sample) before any pixel is decoded. Palette and CMYK images
+    come back as RGB, a JPEG's EXIF orientation is applied, and of a
+    multi-frame file (animated PNG or WebP, multi-page TIFF) the first frame
+    is read.
+
     Parameters
     ----------
     path : str or path-like
-        Image file (any format OpenCV decodes); ``-`` reads stdin.
+        PNG, JPEG, WebP, TIFF, BMP or PNM file; ``-`` reads stdin.
 
     Returns
     -------
@@ -46,10 +562,16 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     TpsvError
-        Not an image, 16-bit, with transparency, or smaller than 2x2.
+        Unreadable, not a supported image, truncated or corrupt, too large,
+        16-bit or floating-point, with transparency, or smaller than 2x2.
     """
-    img = _decode(path, cv2.IMREAD_UNCHANGED)
-    if img.dtype != np.uint8:
+    data, header = _open(path, max_bits=8)
+    w, h = header.upright_size
+    if h < 2 or w < 2:
+        raise TpsvError(f"{path}: image of {w}x{h} is too small (at least 2x2)")
+    img = _decode(data, header, path, cv2.IMREAD_UNCHANGED)
+    del data  # the file's bytes are not needed while the float copy is made
+    if img.dtype != np.uint8:  # the header said 8-bit; a decoder saying otherwise still stops here
         raise TpsvError(f"{path}: {img.dtype.itemsize * 8}-bit image; tpsv reads 8-bit images only")
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
@@ -59,14 +581,13 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         img = img[:, :, :3]
     elif img.shape[2] != 3:
         raise TpsvError(f"{path}: image with {img.shape[2]} channels; expected grey or RGB")
-    h, w = img.shape[:2]
-    if h < 2 or w < 2:
-        raise TpsvError(f"{path}: image of {w}x{h} is too small (at least 2x2)")
     return np.ascontiguousarray(img[:, :, ::-1]).astype(np.float32) / 255.0
 
 
 def read_labels(path: str | os.PathLike, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Read a label map (8- or 16-bit single-channel PNG, one integer a pixel).
+    """Read a label map (8- or 16-bit single-channel image, one integer a pixel).
+
+    The same header checks as :func:`read_image` apply, with 16 bits allowed.
 
     Parameters
     ----------
@@ -78,7 +599,8 @@ def read_labels(path: str | os.PathLike, shape: tuple[int, int] | None = None) -
     -------
     labels : ndarray, shape (H, W), int32
     """
-    img = _decode(path, cv2.IMREAD_UNCHANGED)
+    data, header = _open(path, max_bits=16)
+    img = _decode(data, header, path, cv2.IMREAD_UNCHANGED)
     if img.ndim == 3:
         if img.shape[2] >= 3 and np.array_equal(img[:, :, 0], img[:, :, 1]) and np.array_equal(img[:, :, 1], img[:, :, 2]):
             img = img[:, :, 0]
@@ -91,6 +613,25 @@ def read_labels(path: str | os.PathLike, shape: tuple[int, int] | None = None) -
             f"{path}: label map is {img.shape[1]}x{img.shape[0]} but the image is {shape[1]}x{shape[0]}"
         )
     return img.astype(np.int32)
+
+
+def read_strokes(path: str | os.PathLike) -> np.ndarray:
+    """Read a stroke image as 8-bit RGB (grey, palette and 16-bit are converted, alpha dropped).
+
+    The same header checks as :func:`read_image` apply, with 16 bits allowed.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    rgb : ndarray, shape (H, W, 3), uint8
+    """
+    data, header = _open(path, max_bits=16)
+    # Orientation is applied by _decode, as for the other readers.
+    img = _decode(data, header, path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+    return np.ascontiguousarray(img[:, :, ::-1])
 
 
 def encode_png(rgb: np.ndarray) -> bytes:
@@ -110,12 +651,13 @@ def write_image(path: str | os.PathLike, rgb: np.ndarray) -> None:
     write_bytes_atomic(path, encode_png(rgb))
 
 
-def write_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
-    """Write a label map as an 8-bit PNG, or 16-bit when there are over 256 labels."""
+def encode_labels(labels: np.ndarray) -> bytes:
+    """PNG bytes of a label map: 8-bit, or 16-bit when there are over 256 labels."""
     if labels.min(initial=0) < 0 or labels.max(initial=0) > 65535:
         raise TpsvError("label values must lie in 0..65535")
     dtype = np.uint8 if labels.max(initial=0) < 256 else np.uint16
     ok, buf = cv2.imencode(".png", labels.astype(dtype))
     if not ok:
         raise TpsvError("PNG encoding failed")
-    write_bytes_atomic(path, buf.tobytes())
+    return buf.tobytes()
+

@@ -24,6 +24,7 @@ model: they are derived from it at load time.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -102,21 +103,30 @@ class Features:
     kind: np.ndarray
     pair: np.ndarray
 
+    #: dtype and per-feature shape of every array (a subclass adding arrays extends it).
+    _COLUMNS: ClassVar[dict] = {
+        "region": (np.int32, ()),
+        "st": (np.float64, (2,)),
+        "lab": (np.float32, (3,)),
+        "kind": (np.uint8, ()),
+        "pair": (np.int32, ()),
+    }
+
     def __len__(self) -> int:
         return int(self.region.shape[0])
 
     @classmethod
-    def empty(cls) -> "Features":
-        return cls(
-            region=np.zeros(0, np.int32),
-            st=np.zeros((0, 2), np.float64),
-            lab=np.zeros((0, 3), np.float32),
-            kind=np.zeros(0, np.uint8),
-            pair=np.zeros(0, np.int32),
-        )
+    def empty(cls):
+        """No features."""
+        return cls(**{name: np.zeros((0,) + shape, dtype) for name, (dtype, shape) in cls._COLUMNS.items()})
 
-    def subset(self, index: np.ndarray) -> "Features":
-        """Features at ``index`` (bool mask or integer array), pairs remapped.
+    @classmethod
+    def _cast(cls, pick) -> dict:
+        """Every array except ``pair`` (whose indices need remapping): ``pick(name)`` cast to its dtype."""
+        return {name: pick(name).astype(dtype) for name, (dtype, _) in cls._COLUMNS.items() if name != "pair"}
+
+    def subset(self, index: np.ndarray):
+        """Features at ``index`` (bool mask or integer array, in that order), pairs remapped.
 
         A pair whose partner is dropped becomes -1.
         """
@@ -125,18 +135,41 @@ class Features:
         remap[idx] = np.arange(idx.size, dtype=np.int32)
         pair = self.pair[idx]
         pair = np.where(pair >= 0, remap[pair], -1).astype(np.int32)
-        return Features(
-            region=self.region[idx].astype(np.int32),
-            st=self.st[idx].astype(np.float64),
-            lab=self.lab[idx].astype(np.float32),
-            kind=self.kind[idx].astype(np.uint8),
-            pair=pair,
-        )
+        return type(self)(**self._cast(lambda name: getattr(self, name)[idx]), pair=pair)
+
+    @classmethod
+    def concat(cls, parts: list):
+        """The features of ``parts`` one after the other, later parts' pair indices shifted.
+
+        Parameters
+        ----------
+        parts : list of Features (of this class)
+
+        Returns
+        -------
+        Features
+            Not sorted by region.
+        """
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls.empty()
+        pairs, off = [], 0
+        for p in parts:
+            pairs.append(np.where(p.pair >= 0, p.pair + off, -1))
+            off += len(p)
+        columns = cls._cast(lambda name: np.concatenate([getattr(p, name) for p in parts]))
+        return cls(**columns, pair=np.concatenate(pairs).astype(np.int32))
 
 
 @dataclass
 class Params:
     """Parameters a model was made with (stored in the file).
+
+    The defaults are the default feature scheme's, ``"tpsv"``: a ``Params()``
+    has no ``extra["scheme"]`` and ``tpsv.encode.vectorize.scheme_of`` reads
+    it as ``"tpsv"``. ``tpsv.encode.vectorize.scheme_params("paper")`` derives
+    the paper's plain scheme (K = 64, ``overlap = 0.5``, the finest
+    quantisation) from them.
 
     Attributes
     ----------
@@ -169,12 +202,12 @@ class Params:
 
     t_canny: float = 40.0
     t_super: float = 40.0
-    kernel_size: int = 64
-    overlap: float = 0.5
+    kernel_size: int = 32
+    overlap: float = 0.25
     smoothing: float = 0.0
-    st_steps: int = 16
-    l_step: int = 1
-    ab_step: int = 1
+    st_steps: int = 2
+    l_step: int = 8
+    ab_step: int = 8
     extra: dict = field(default_factory=dict)
 
 
@@ -189,6 +222,11 @@ class Model:
     regions : list of Region
     features : Features
     params : Params
+    encoding : dict
+        Owned by ``tpsv.codec``: how the file this model was decoded from was
+        quantised where the format leaves a choice (``st_bits``), so that
+        encoding the model again gives the same file. Empty for a new model;
+        not part of the image (ignored by ``==``).
     """
 
     width: int
@@ -196,3 +234,4 @@ class Model:
     regions: list[Region]
     features: Features
     params: Params = field(default_factory=Params)
+    encoding: dict = field(default_factory=dict, compare=False, repr=False)

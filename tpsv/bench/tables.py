@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from pathlib import Path
 from typing import Callable
 
 import cv2
@@ -16,8 +15,9 @@ import numpy as np
 
 from . import baseline
 from .. import metrics
-from ..tps import group as tps
+from .. import tps
 from ..errors import TpsvError
+from ..geometry.patch import patch_pixel_scale
 from ..encode.features import FeatureExtractor
 from ..model import Model
 from ..encode.vectorize import build_geometry, evaluate, make_model, vectorize
@@ -83,7 +83,7 @@ def _global_solve_seconds(model: Model, n_eval: int = 2000) -> dict:
         n = sel.size
         if n < 3:
             continue
-        sx, sy = tps.patch_pixel_scale(reg.patch)
+        sx, sy = patch_pixel_scale(reg.patch)
         pts = feats.st[sel] * [sx, sy]
         vals = feats.lab[sel].astype(np.float64)
         m = n if n <= GLOBAL_EXACT_MAX else GLOBAL_EXACT_MAX
@@ -413,8 +413,8 @@ def tables(results: list[dict], device: str) -> str:
     return "\n".join(out)
 
 
-def rd_plot(result: dict, path: Path, size: tuple[int, int] = (640, 420)) -> None:
-    """PSNR against bpp: tpsv (grid and search points) and the JPEG sweep, as a PNG."""
+def rd_plot_png(result: dict, size: tuple[int, int] = (640, 420)) -> bytes:
+    """PSNR against bpp: tpsv (grid and search points) and the JPEG sweep, as PNG bytes."""
     W, H = size
     img = np.full((H, W, 3), 255, np.uint8)
     tp = [(p["bpp"], p["psnr"]) for p in result["grid"] + [result["optimal"], result["initial"]]]
@@ -452,6 +452,4 @@ def rd_plot(result: dict, path: Path, size: tuple[int, int] = (640, 420)) -> Non
     cv2.putText(img, f"{result['name']}: tpsv (red, green = searched optimum), JPEG (blue)", (L, 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", img)
-    from ..fileio import write_bytes_atomic
-
-    write_bytes_atomic(path, buf.tobytes())
+    return buf.tobytes()

@@ -7,10 +7,13 @@ from pathlib import Path
 
 import click
 
-from . import main, progress_enabled, say
-from .options import device_for, device_option, is_tpsv, json_option
+from . import main, progress_bar, say
+from .options import SEED, device_for, device_option, is_tpsv, json_option
+from .outputs import claim_outputs
 from .. import codec
+from ..bench import tables as b
 from ..errors import TpsvError
+from ..fileio import display
 from ..image import read_image, read_labels
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
@@ -30,15 +33,45 @@ def _inputs(images: tuple[str, ...]) -> list[tuple[str, Path, Path | None]]:
     return out
 
 
+def _outputs(out_dir: str | None, plotted: list[str]) -> list[tuple[str, Path]]:
+    """``--out``'s files (the folder is made here): bench.json and a plot per raster image."""
+    if not out_dir:
+        return []
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TpsvError(f"cannot make folder {display(out_dir)}: {exc.strerror or exc}") from None
+    return [("--out", out / "bench.json")] + [("--out", out / f"rd-{name}.png") for name in plotted]
+
+
+def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int) -> list[dict]:
+    """The benchmark of each input (a .tpsv: its timing tables only), with a progress bar on a terminal."""
+    stages = ["search", "initial", "grid", "jpeg", "timing", "magnify", "edits"]
+    results = []
+    with progress_bar(ctx, len(inputs) * len(stages), "bench") as bar:
+        for name, path, lab_path, model in inputs:
+            if model:
+                results.append(b.bench_model(name, codec.load(path), device=device))
+                if bar:
+                    bar.update(len(stages))
+                continue
+            rgb = read_image(path)
+            labels = read_labels(lab_path, shape=rgb.shape[:2]) if lab_path else None
+            results.append(b.bench_image(name, rgb, labels, device=device, iterations=iterations, grid=grid,
+                                         seed=seed, step=(lambda s: bar.update(1)) if bar else None))
+    return results
+
+
 @main.command()
 @click.argument("images", nargs=-1, type=click.Path(dir_okay=False, exists=True))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Folder for bench.json and the rate-distortion plots (PNG).")
-@click.option("--iterations", type=click.IntRange(0, 1000), default=20, show_default=True,
+@click.option("--iterations", type=click.IntRange(1, 1000), default=20, show_default=True,
               help="N_total of the threshold search.")
 @click.option("--grid", type=click.IntRange(0, 20), default=4, show_default=True,
               help="Brute-force grid of N x N thresholds (0: skip).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @device_option
 @json_option
 @click.pass_context
@@ -52,40 +85,17 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
     guess, the searched optimum, a brute-force grid and JPEG), the 4x
     magnification comparison against bicubic and Lanczos, and CPU seconds.
     """
-    from ..bench import tables as b
-
-    device = device_for(ctx, device)
-    inputs = _inputs(images)
-    stages = ["search", "initial", "grid", "jpeg", "timing", "magnify", "edits"]
-    results = []
-    bar = None
-    if progress_enabled(ctx):
-        bar = click.progressbar(length=len(inputs) * len(stages), label="bench", file=click.get_text_stream("stderr"))
-        bar.__enter__()
-    try:
-        for name, path, lab_path in inputs:
-            if is_tpsv(str(path)):
-                results.append(b.bench_model(name, codec.load(path), device=device))
-                if bar:
-                    bar.update(len(stages))
-                continue
-            rgb = read_image(path)
-            labels = read_labels(lab_path, shape=rgb.shape[:2]) if lab_path else None
-            results.append(b.bench_image(name, rgb, labels, device=device, iterations=iterations, grid=grid,
-                                         seed=seed, step=(lambda s: bar.update(1)) if bar else None))
-    finally:
-        if bar is not None:
-            bar.__exit__(None, None, None)
-    report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results}
-    if out_dir:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        from ..fileio import write_bytes_atomic
-
-        write_bytes_atomic(out / "bench.json", json.dumps(report, indent=2, default=float).encode())
-        for r in results:
-            if "grid" in r:
-                b.rd_plot(r, out / f"rd-{r['name']}.png")
+    inputs = [(name, path, lab, is_tpsv(str(path))) for name, path, lab in _inputs(images)]
+    with claim_outputs([p for _, path, lab, _ in inputs for p in (path, lab)],
+                       *_outputs(out_dir, [name for name, _, _, model in inputs if not model])) as out:
+        device = device_for(ctx, device)
+        results = _run(ctx, inputs, device, iterations, grid, seed)
+        report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results}
+        if out_dir:
+            out.write(Path(out_dir) / "bench.json", json.dumps(report, indent=2, default=float).encode())
+            for r in results:
+                if "grid" in r:
+                    out.write(Path(out_dir) / f"rd-{r['name']}.png", b.rd_plot_png(r))
     if as_json:
         click.echo(json.dumps(report, indent=2, default=float))
     else:

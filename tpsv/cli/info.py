@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 from . import main
+from .options import emit_json, json_option
 from .. import codec
-from ..fileio import read_bytes
+from ..fileio import display, read_bytes
 from ..model import CURVILINEAR
 
 
 def summary(data: bytes) -> dict:
-    """Figures about an encoded model: size, counts, bytes per section, parameters."""
+    """Figures about an encoded model: size, counts, bytes per section, parameters.
+
+    ``params`` holds the named parameters of :class:`tpsv.model.Params`, and
+    ``params["extra"]`` the free-form entries stored beside them (so that an
+    extra entry named like a parameter cannot pass for it).
+    """
     model = codec.decode(data)
     kinds = model.features.kind
+    p = model.params
     return {
         "width": model.width,
         "height": model.height,
@@ -28,32 +33,41 @@ def summary(data: bytes) -> dict:
         "sections": codec.section_sizes(data),
         "grids": [list(r.patch.shape) for r in model.regions],
         "params": {
-            "t_canny": model.params.t_canny,
-            "t_super": model.params.t_super,
-            "kernel_size": model.params.kernel_size,
-            "overlap": model.params.overlap,
-            "smoothing": model.params.smoothing,
-            **model.params.extra,
+            "t_canny": p.t_canny,
+            "t_super": p.t_super,
+            "kernel_size": p.kernel_size,
+            "overlap": p.overlap,
+            "smoothing": p.smoothing,
+            "extra": dict(p.extra),
         },
     }
 
 
+def _pairs(items: dict) -> str:
+    """``k=v, ...`` with every stored string escaped (no terminal control from a file)."""
+    return ", ".join(f"{display(k)}={display(v) if isinstance(v, str) else v}" for k, v in items.items())
+
+
 @main.command()
 @click.argument("path", type=click.Path(dir_okay=False, allow_dash=True))
-@click.option("--json", "as_json", is_flag=True, help="Machine-readable summary on stdout.")
+@json_option
 def info(path: str, as_json: bool) -> None:
-    """Size, regions, features, bytes and parameters of a .tpsv file."""
-    try:
-        data = read_bytes(path, limit=codec.MAX_FILE_BYTES)
-    except OSError as exc:
-        raise click.FileError(path, exc.strerror) from None
-    s = summary(data)
+    """Size, regions, features, bytes and parameters of a .tpsv file.
+
+    Strings stored in the file are shown escaped (\\x1b for ESC...); free-form
+    entries stored beside the parameters are listed apart, as "extra".
+    """
+    s = summary(read_bytes(path, limit=codec.MAX_FILE_BYTES))
     if as_json:
-        click.echo(json.dumps(s, indent=2, sort_keys=True))
+        emit_json(s)  # JSON escapes control characters itself
         return
-    click.echo(f"{path}: {s['width']}x{s['height']} px, {s['bytes']} bytes ({s['bpp']:.3f} bpp)")
-    click.echo(f"  regions   {s['regions']}  (control grids {', '.join('x'.join(map(str, g)) for g in s['grids'][:8])}"
-               + (" ..." if len(s["grids"]) > 8 else "") + ")")
+    params = dict(s["params"])
+    extra = params.pop("extra")
+    grids = ", ".join("x".join(map(str, g)) for g in s["grids"][:8]) + (" ..." if len(s["grids"]) > 8 else "")
+    click.echo(f"{display(path)}: {s['width']}x{s['height']} px, {s['bytes']} bytes ({s['bpp']:.3f} bpp)")
+    click.echo(f"  regions   {s['regions']}  (control grids {grids})")
     click.echo(f"  features  {s['features']}  ({s['curvilinear']} curvilinear, {s['gradation']} gradation)")
     click.echo("  sections  " + ", ".join(f"{k} {v} B" for k, v in s["sections"].items()))
-    click.echo("  params    " + ", ".join(f"{k}={v}" for k, v in s["params"].items()))
+    click.echo("  params    " + _pairs(params))
+    if extra:
+        click.echo("  extra     " + _pairs(extra))

@@ -3,39 +3,46 @@
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import click
 
 from . import main, say
-from .options import (check_json_target, device_for, device_option, emit_json, is_tpsv, json_option,
-                      output_option, parse_size, positive)
+from .options import (SCALE, SIZE, check_json_target, device_for, device_option, emit_json, is_tpsv, json_option,
+                      output_option, scale_option)
+from .outputs import claim_outputs, encode_model
 from .. import codec
-from ..errors import TpsvError
-from ..image import write_image
+from ..image import encode_png, read_image, read_labels
+from ..render.magnify import magnify_raster
+from ..render.raster import output_size, render_png
 
 
-def _render_and_write(ctx, model, output, size, scale, device, as_json, extra=None):
-    from ..render.raster import render
+def _render_png(out, model, output, size, scale, device) -> dict:
+    """Render ``model`` at ``size`` (W, H) or else at ``scale`` and stage the PNG; returns the summary.
 
+    Large outputs are rendered in bands and streamed into the staged file, so
+    memory stays bounded at any size (``tpsv.render.raster.render_png``).
+    """
     t0 = time.perf_counter()
-    if size is not None:
-        rgb = render(model, width=size[0], height=size[1], device=device)
-    else:
-        rgb = render(model, scale=scale, device=device)
+    w, h = size if size is not None else (None, None)
+    W, H = output_size(model, w, h, None if size is not None else scale)
+    out.write(output, render_png(model, W, H, device=device))
     seconds = time.perf_counter() - t0
-    write_image(output, rgb)
-    info = {"width": rgb.shape[1], "height": rgb.shape[0], "seconds": seconds, "device": device, **(extra or {})}
+    return {"width": W, "height": H, "seconds": seconds, "device": device}
+
+
+def _report(ctx, output, info: dict, as_json: bool) -> None:
     if as_json:
         emit_json(info)
     else:
-        say(ctx, f"{output}: {info['width']}x{info['height']} on {device} in {seconds:.3f} s")
+        say(ctx, f"{output}: {info['width']}x{info['height']} on {info['device']} in {info['seconds']:.3f} s")
 
 
 @main.command()
 @click.argument("path", type=click.Path(dir_okay=False, allow_dash=True))
 @output_option("PNG to write ('-': stdout).")
-@click.option("--scale", type=float, default=None, help="Output scale (default 1).")
-@click.option("--size", default=None, help="Output size WIDTHxHEIGHT (instead of --scale).")
+@scale_option("Output scale (default 1).", default=None)
+@click.option("--size", type=SIZE, default=None, help="Output size in pixels (instead of --scale).")
 @device_option
 @json_option
 @click.pass_context
@@ -44,17 +51,16 @@ def render(ctx, path, output, scale, size, device, as_json):
     check_json_target(as_json, output)
     if scale is not None and size is not None:
         raise click.UsageError("--scale and --size cannot both be used")
-    positive("--scale", scale)
-    wh = parse_size(size)
-    device = device_for(ctx, device)
-    model = codec.load(path)
-    _render_and_write(ctx, model, output, wh, scale or 1.0, device, as_json)
+    with claim_outputs([path], ("-o", output)) as out:
+        device = device_for(ctx, device)
+        info = _render_png(out, codec.load(path), output, size, scale or 1.0, device)
+    _report(ctx, output, info, as_json)
 
 
 @main.command()
 @click.argument("path", type=click.Path(dir_okay=False, allow_dash=True))
 @output_option("PNG to write ('-': stdout).")
-@click.option("--factor", type=float, required=True, help="Magnification factor.")
+@click.option("--factor", type=SCALE, required=True, help="Magnification factor.")
 @click.option("--labels", type=click.Path(dir_okay=False), default=None,
               help="For raster input: label map whose region borders stay sharp (default: one region).")
 @click.option("--fit-iterations", type=click.IntRange(0, 50), default=6, show_default=True,
@@ -73,30 +79,28 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, devic
     rendered (tpsv.render.magnify).
     """
     check_json_target(as_json, output)
-    positive("--factor", factor)
-    device = device_for(ctx, device)
     if is_tpsv(path):
         if labels or save_model:
             raise click.UsageError("--labels and --save-model apply to raster input only")
-        model = codec.load(path)
-        _render_and_write(ctx, model, output, None, factor, device, as_json)
+        with claim_outputs([path], ("-o", output)) as out:
+            device = device_for(ctx, device)
+            info = _render_png(out, codec.load(path), output, None, factor, device)
+        _report(ctx, output, info, as_json)
         return
-    from ..image import read_image, read_labels
-    from ..render.magnify import magnify_raster
-    from ..render.raster import MAX_PIXELS, MAX_SIDE
-
     t0 = time.perf_counter()
-    rgb = read_image(path)
-    lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
-    h, w = rgb.shape[:2]
-    size = (max(1, round(w * factor)), max(1, round(h * factor)))
-    if max(size) > MAX_SIDE or size[0] * size[1] > MAX_PIXELS:
-        raise TpsvError(f"output size {size[0]}x{size[1]} is too large (at most {MAX_SIDE} px per side)")
-    model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device)
-    seconds = time.perf_counter() - t0
-    if save_model:
-        codec.save(model, save_model)
-    write_image(output, big)
+    with claim_outputs([path, labels], ("-o", output), ("--save-model", save_model)) as out:
+        device = device_for(ctx, device)
+        rgb = read_image(path)
+        lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
+        h, w = rgb.shape[:2]
+        size = (max(1, round(w * factor)), max(1, round(h * factor)))
+        # the renderer's size limits, checked before the fit rather than at its final render
+        output_size(SimpleNamespace(width=w, height=h), width=size[0], height=size[1])
+        model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device)
+        seconds = time.perf_counter() - t0
+        if save_model:
+            out.write(save_model, encode_model(model))
+        out.write(output, encode_png(big))
     info = {"width": size[0], "height": size[1], "seconds": seconds, "device": device,
             "features": len(model.features), "regions": len(model.regions)}
     if as_json:

@@ -4,27 +4,32 @@ from __future__ import annotations
 
 import click
 
-from . import main, progress_enabled, say
-from .options import check_json_target, device_for, device_option, emit_json, json_option, output_option
+from . import main, progress_bar, say
+from .options import (FINITE_NON_NEGATIVE, KERNEL_SIZE, SEED, check_json_target, device_for, device_option,
+                      emit_json, json_option, output_option)
+from .outputs import claim_outputs
 from .. import metrics
-from ..fileio import write_bytes_atomic
-from ..image import read_image, read_labels, write_image
+from ..encode.vectorize import scheme_params, vectorize as vectorize_image
+from ..image import encode_png, read_image, read_labels
 from ..model import CURVILINEAR, Params
+from ..render.preview import draw_preview
 
 
 def vectorize_options(f):
-    """Options shared by ``vectorize`` and ``magnify`` (for raster input)."""
+    """The encoder's options of ``vectorize``: labels, seed, search and model parameters."""
     opts = [
         click.option("--labels", type=click.Path(dir_okay=False), default=None,
                      help="Label map PNG (one integer per pixel); segmented automatically if absent."),
-        click.option("--seed", type=int, default=0, show_default=True, help="Seed of segmentation and search."),
-        click.option("--iterations", type=click.IntRange(0, 1000), default=20, show_default=True,
-                     help="N_total of the Monte Carlo threshold search."),
-        click.option("--canny", "t_canny", type=float, default=None, help="Fix T_canny (0-255 gradient scale)."),
-        click.option("--super", "t_super", type=float, default=None, help="Fix T_super (Lab variance)."),
-        click.option("--kernel-size", type=click.IntRange(8, 128), default=None,
+        click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of segmentation and search."),
+        click.option("--iterations", type=click.IntRange(1, 1000), default=20, show_default=True,
+                     help="N_total of the Monte Carlo threshold search (--no-search: none)."),
+        click.option("--canny", "t_canny", type=FINITE_NON_NEGATIVE, default=None,
+                     help="Fix T_canny (0-255 gradient scale)."),
+        click.option("--super", "t_super", type=FINITE_NON_NEGATIVE, default=None,
+                     help="Fix T_super (Lab variance)."),
+        click.option("--kernel-size", type=KERNEL_SIZE, default=None,
                      help="Features per TPS kernel (K) [default: 32; 64 with --plain]."),
-        click.option("--smoothing", type=click.FloatRange(0.0), default=Params.smoothing, show_default=True,
+        click.option("--smoothing", type=FINITE_NON_NEGATIVE, default=Params.smoothing, show_default=True,
                      help="TPS smoothing term (0: exact interpolation)."),
         click.option("--plain", is_flag=True, default=False,
                      help="The paper's plain scheme: pairs on every Canny pixel, superpixel-boundary gradation "
@@ -38,33 +43,25 @@ def vectorize_options(f):
 
 def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, search, device,
                   plain=False):
-    """Read inputs and vectorise; shared by ``vectorize`` and ``magnify``."""
-    from ..encode.vectorize import scheme_params, vectorize as vectorize_image
-
+    """Read the inputs and vectorise, with a progress bar for the search on a terminal."""
     rgb = read_image(image)
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
     params = scheme_params("paper" if plain else "tpsv", kernel_size=kernel_size, smoothing=smoothing)
-    bar = None
-    if search and progress_enabled(ctx):
-        bar = click.progressbar(length=iterations, label="search", file=click.get_text_stream("stderr"))
-        bar.__enter__()
+    with progress_bar(ctx, iterations, "search", enabled=search) as bar:
 
-    def progress(done, total):
-        if bar is not None:
-            bar.update(done - bar.pos)
+        def progress(done, total):
+            if bar is not None:
+                bar.update(done - bar.pos)
 
-    try:
         result = vectorize_image(
             rgb, lab, t_canny=t_canny, t_super=t_super, search=search, iterations=iterations,
             seed=seed, params=params, device=device, progress=progress,
         )
-    finally:
-        if bar is not None:
-            bar.__exit__(None, None, None)
     return rgb, result
 
 
 def summary(rgb, result) -> dict:
+    """The JSON summary of a vectorisation: size, counts, bytes, quality, thresholds, time."""
     m = result.model
     h, w = rgb.shape[:2]
     n = len(result.data)
@@ -100,14 +97,13 @@ def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, ke
               search, preview, device, as_json):
     """Vectorise IMAGE into a .tpsv hybrid vector image."""
     check_json_target(as_json, output)
-    device = device_for(ctx, device)
-    rgb, result = run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size,
-                                smoothing, search, device, plain=plain)
-    write_bytes_atomic(output, result.data)
-    if preview:
-        from ..render.preview import draw_preview
-
-        write_image(preview, draw_preview(rgb, result.model))
+    with claim_outputs([image, labels], ("-o", output), ("--preview", preview)) as out:
+        device = device_for(ctx, device)
+        rgb, result = run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size,
+                                    smoothing, search, device, plain=plain)
+        out.write(output, result.data)
+        if preview:
+            out.write(preview, encode_png(draw_preview(rgb, result.model)))
     s = summary(rgb, result)
     if as_json:
         emit_json(s)

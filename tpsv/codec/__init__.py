@@ -13,29 +13,37 @@ quantize(model) -> Model        the model as decode(encode(model)) returns it
 section_sizes(data) -> dict     stored bytes per part, header included
 load(path) -> Model             read a file or stdin ('-') and decode
 save(model, path) -> int        encode and write atomically
+
+The limits (``MAX_*``, ``SUPPORTED_KERNEL_SIZES``) are budgets every command
+can meet (``docs/FORMAT.md``, Limits); the renderer and the CLI take their
+kernel sizes from ``SUPPORTED_KERNEL_SIZES``. A model beyond them is refused by
+the encoder with ``FormatLimitError`` (a ``ValueError`` and a ``TpsvError``).
 """
 
 from .container import decode, encode, load, quantize, save, section_sizes
 from .layout import (
     HEADER_SIZE,
+    FormatLimitError,
     MAGIC,
     MAX_CTRL_POINTS,
     MAX_FEATURES,
     MAX_FILE_BYTES,
     MAX_GRID,
     MAX_PIXELS,
+    MAX_POLYGON_VERTICES,
     MAX_POLYGONS,
     MAX_REGIONS,
     MAX_SIDE,
     MAX_VERTICES,
     MIN_GRID,
     SECTIONS,
+    SUPPORTED_KERNEL_SIZES,
     VERSION,
 )
 
 __all__ = [
-    "encode", "decode", "quantize", "section_sizes", "load", "save",
+    "encode", "decode", "quantize", "section_sizes", "load", "save", "FormatLimitError",
     "MAGIC", "VERSION", "HEADER_SIZE", "SECTIONS", "MAX_FILE_BYTES", "MAX_SIDE",
     "MAX_PIXELS", "MAX_REGIONS", "MAX_POLYGONS", "MAX_VERTICES", "MAX_CTRL_POINTS",
-    "MAX_FEATURES", "MIN_GRID", "MAX_GRID",
+    "MAX_FEATURES", "MAX_POLYGON_VERTICES", "MIN_GRID", "MAX_GRID", "SUPPORTED_KERNEL_SIZES",
 ]

@@ -7,7 +7,7 @@ import zlib
 
 import zstandard
 
-from ..errors import TpsvError, TpsvFormatError
+from ..errors import TpsvFormatError
 from ..fileio import read_bytes, write_bytes_atomic
 from ..model import Model
 from . import layout, quant, sections
@@ -21,8 +21,10 @@ ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
 def _quantized(model: Model) -> quant.Quantized:
-    """``model`` as stored, checked; ValueError when it cannot be encoded."""
+    """``model`` as stored, checked; ValueError when it cannot be encoded
+    (FormatLimitError, also a TpsvError, when it is too large for the format)."""
     q = quant.from_model(model)
+    quant.check_limits(q)
     try:
         quant.validate(q)
     except TpsvFormatError as exc:
@@ -66,10 +68,14 @@ def encode(model: Model) -> bytes:
 
     Raises
     ------
+    FormatLimitError
+        A ``ValueError`` and a ``TpsvError``: the canvas, a count or a polygon
+        is beyond the format's limits, or ``kernel_size`` is not one of
+        ``SUPPORTED_KERNEL_SIZES`` (the user's data or options, shown as one
+        line by the CLI).
     ValueError
-        The model breaks a rule of the format: wrong shapes, non-finite
-        values, features not sorted by region, asymmetric pairs, a count or
-        size beyond the format's limits.
+        The model breaks another rule of the format: wrong shapes, non-finite
+        values, features not sorted by region, asymmetric pairs.
     """
     q = _quantized(model)
     raws = (sections.pack_params(q), sections.pack_regions(q), sections.pack_features(q))
@@ -203,14 +209,7 @@ def load(path: str | os.PathLike) -> Model:
         The content is not a valid .tpsv file; the message starts with the path.
     """
     name = _display(path)
-    try:
-        data = read_bytes(path, limit=layout.MAX_FILE_BYTES)
-    except OSError as exc:
-        raise TpsvError(f"{name}: cannot read ({exc.strerror or exc})") from None
-    except TpsvError:
-        raise TpsvFormatError(
-            f"{name}: file too large (limit {layout.MAX_FILE_BYTES} bytes)"
-        ) from None
+    data = read_bytes(path, limit=layout.MAX_FILE_BYTES)  # TpsvError naming the file
     try:
         return decode(data)
     except TpsvFormatError as exc:
@@ -233,8 +232,5 @@ def save(model: Model, path: str | os.PathLike) -> int:
         The model cannot be encoded.
     """
     data = encode(model)
-    try:
-        write_bytes_atomic(path, data)
-    except OSError as exc:
-        raise TpsvError(f"{_display(path)}: cannot write ({exc.strerror or exc})") from None
+    write_bytes_atomic(path, data)  # TpsvError naming the file
     return len(data)

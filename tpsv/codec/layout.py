@@ -10,7 +10,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from ..errors import TpsvFormatError
+from ..errors import TpsvError, TpsvFormatError
 
 #: The first 8 bytes of every .tpsv file. ``\r\n`` and the trailing ``\n``
 #: catch CRLF <-> LF conversion by text-mode transfers (as in PNG); ``\x1a``
@@ -31,28 +31,47 @@ HEADER_CRC_OFFSET = HEADER_SIZE - 4
 #: Section names, in file order.
 SECTIONS = ("params", "regions", "features")
 
-# Limits, checked before anything is allocated from a declared size.
+# Limits, checked before anything is allocated from a declared size. They are
+# budgets as well as sanity checks: each is set so that the largest file the
+# decoder accepts can be decoded, rendered and edited by every tpsv command in
+# bounded memory (peak RSS under 1 GB) and time; docs/FORMAT.md ("Limits")
+# gives the measurement behind each.
 MAX_FILE_BYTES = 256 * 2**20
+#: Canvas side, and canvas pixels: tpsv reads photos of at most 40 Mpx
+#: (``tpsv.image.MAX_PIXELS``) and a model is as large as its photo.
 MAX_SIDE = 65535
-MAX_PIXELS = 2**28
-MAX_REGIONS = 65535
-MAX_POLYGONS = 2**20
-MAX_VERTICES = 2**26
-MAX_CTRL_POINTS = 2**22
-MAX_FEATURES = 2**26
+MAX_PIXELS = 2**26
+#: Render time is about 0.6-2.5 ms per region whatever the output size.
+MAX_REGIONS = 4096
+#: Outer boundaries plus holes; a traced hole holds at least one other region.
+MAX_POLYGONS = 2 * MAX_REGIONS
+MAX_VERTICES = 2**19
+MAX_POLYGON_VERTICES = 2**18
+MAX_CTRL_POINTS = 2**18
+#: Render and the edits keep several arrays per feature (stylize: ~600 bytes).
+MAX_FEATURES = 2**20
 MIN_GRID = 2
 MAX_GRID = 256
+#: Features per TPS kernel the renderer compiles a Warp solve kernel for (each
+#: new value costs a compilation, ~10 s on CUDA, written to the user's kernel cache):
+#: ``tpsv vectorize`` writes 32 (64 with ``--plain``), magnify 32. The renderer
+#: and the CLI take their choices from here.
+SUPPORTED_KERNEL_SIZES = (8, 16, 32, 64, 128)
 MAX_PARAMS_RAW = 2**20
 #: Largest zstd window the decoder accepts (level 19 uses at most 8 MiB).
 MAX_WINDOW = 2**27
 
-#: A section may inflate to more than RATIO_FLOOR bytes only at a ratio of at
-#: most MAX_RATIO: real sections compress 2-4x, bombs thousands of times.
-MAX_RATIO = 1024
-RATIO_FLOOR = 2**20
-
 #: Generous allowance for msgpack map headers, keys and bin headers per section.
 SECTION_OVERHEAD = 256
+
+
+class FormatLimitError(TpsvError, ValueError):
+    """A model too large for the format, or with a ``kernel_size`` it does not support.
+
+    Raised by the encoder. A ``ValueError`` as the encoder documents, and a
+    ``TpsvError`` because it is the user's data (a photo too large, an option
+    value) rather than a program error: the CLI shows it as one line.
+    """
 
 
 @dataclass(frozen=True)
@@ -177,15 +196,13 @@ def parse_header(data: bytes | memoryview) -> Header:
     return h
 
 
-def check_header_limits(h: Header) -> None:
-    """Raise TpsvFormatError when a size or count in ``h`` is out of range."""
+def check_size_limits(h: Header, error=TpsvFormatError, prefix: str = "bad header: ") -> None:
+    """Raise ``error`` when the canvas or a count in ``h`` is beyond the limits (not below them)."""
     for name, value in (("width", h.width), ("height", h.height)):
-        if not 1 <= value <= MAX_SIDE:
-            raise TpsvFormatError(f"bad header: {name} {value} not in 1..{MAX_SIDE}")
+        if value > MAX_SIDE:
+            raise error(f"{prefix}{name} {value} not in 1..{MAX_SIDE}")
     if h.width * h.height > MAX_PIXELS:
-        raise TpsvFormatError(
-            f"bad header: {h.width}x{h.height} exceeds {MAX_PIXELS} pixels"
-        )
+        raise error(f"{prefix}{h.width}x{h.height} exceeds {MAX_PIXELS} pixels")
     limits = (
         ("regions", h.regions, MAX_REGIONS),
         ("polygons", h.polygons, MAX_POLYGONS),
@@ -195,7 +212,15 @@ def check_header_limits(h: Header) -> None:
     )
     for name, value, limit in limits:
         if value > limit:
-            raise TpsvFormatError(f"bad header: {value} {name} exceed the limit {limit}")
+            raise error(f"{prefix}{value} {name} exceed the limit {limit}")
+
+
+def check_header_limits(h: Header) -> None:
+    """Raise TpsvFormatError when a size or count in ``h`` is out of range."""
+    for name, value in (("width", h.width), ("height", h.height)):
+        if not 1 <= value <= MAX_SIDE:
+            raise TpsvFormatError(f"bad header: {name} {value} not in 1..{MAX_SIDE}")
+    check_size_limits(h)
     # Cross-count rules that hold for every valid model; checking them here
     # keeps the raw-size bounds tight.
     if h.polygons < h.regions:
@@ -220,8 +245,6 @@ def check_header_limits(h: Header) -> None:
             )
         if comp == 0:
             raise TpsvFormatError(f"section {name}: empty (a zstd frame is required)")
-        if raw > RATIO_FLOOR and raw > MAX_RATIO * comp:
-            raise TpsvFormatError(
-                f"section {name}: declared size {raw} is over {MAX_RATIO} times "
-                f"its {comp} stored bytes (zstd bomb?)"
-            )
+    # No compression-ratio rule: a smooth control grid compresses thousands of
+    # times, and the count limits already bound what any file inflates to
+    # (sum of raw_size_bounds at the limits: about 25 MiB).

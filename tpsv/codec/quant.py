@@ -37,13 +37,15 @@ INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
 PARAM_FIELDS = {
     "t_canny": (float, 0.0, math.inf, False),
     "t_super": (float, 0.0, math.inf, False),
-    "kernel_size": (int, 1, 4096, False),
+    "kernel_size": (int, min(layout.SUPPORTED_KERNEL_SIZES), max(layout.SUPPORTED_KERNEL_SIZES), False),
     "overlap": (float, 0.0, 0.5, True),
     "smoothing": (float, 0.0, math.inf, False),
     "st_steps": (int, 1, 64, False),
     "l_step": (int, 1, 16, False),
     "ab_step": (int, 1, 16, False),
 }
+#: Params fields that take one of a few values, not any in their range.
+PARAM_CHOICES = {"kernel_size": layout.SUPPORTED_KERNEL_SIZES}
 MAX_EXTRA_ITEMS = 256
 MAX_EXTRA_KEY = 256
 MAX_EXTRA_STR = 65536
@@ -108,7 +110,7 @@ def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) ->
     width, height : int
         Image size in pixels.
     steps_per_px : int
-        ``Params.st_steps`` (16 unless the model says otherwise).
+        ``Params.st_steps`` of the model.
 
     Returns
     -------
@@ -117,6 +119,37 @@ def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) ->
     """
     steps = int(steps_per_px) * max(int(width), int(height), 1)
     return min(MAX_ST_BITS, max(MIN_ST_BITS, (steps - 1).bit_length()))
+
+
+#: ``Model.encoding`` keys the codec writes: the stored ``st_bits``, and the
+#: ``(width, height, st_steps)`` it was stored for.
+ST_BITS_KEY = "st_bits"
+ST_BITS_FOR_KEY = "st_bits_for"
+
+
+def model_st_bits(model: Model, width: int, height: int, st_steps: int) -> int:
+    """Bits per S and T to encode ``model`` with.
+
+    A decoded model keeps the ``st_bits`` of its file (``model.encoding``), so
+    that encoding it again gives the same S, T and the same bytes, even when
+    another encoder chose a ``st_bits`` other than :func:`st_bits_for`'s. The
+    kept value applies only while width, height and ``st_steps`` are those of
+    the file; a model resized or given another precision is quantised afresh.
+
+    Raises
+    ------
+    ValueError
+        ``model.encoding`` holds a ``st_bits`` the format cannot store.
+    """
+    encoding = getattr(model, "encoding", None) or {}
+    bits = encoding.get(ST_BITS_KEY)
+    if bits is None or tuple(encoding.get(ST_BITS_FOR_KEY, ())) != (width, height, st_steps):
+        return st_bits_for(width, height, st_steps)
+    if isinstance(bits, (bool, np.bool_)) or not isinstance(bits, (int, np.integer)) or not (
+        MIN_ST_BITS <= bits <= MAX_ST_BITS
+    ):
+        raise ValueError(f"model.encoding[{ST_BITS_KEY!r}] = {bits!r} not in {MIN_ST_BITS}..{MAX_ST_BITS}")
+    return int(bits)
 
 
 def lab_limits(l_step: int, ab_step: int) -> tuple[int, int, int]:
@@ -140,9 +173,9 @@ def from_model(model: Model) -> Quantized:
     regions = list(model.regions)
     grid, poly_counts, vert_counts, xy, ctrl, labels = _quantize_regions(regions)
     params = quantize_params(model.params)
-    _validate_params(params, ValueError)
+    _validate_params(params, ValueError, layout.FormatLimitError)
     counts, st_bits, st, lab, kind, pair = _quantize_features(
-        model.features, len(regions), st_bits_for(width, height, params["st_steps"]),
+        model.features, len(regions), model_st_bits(model, width, height, params["st_steps"]),
         params["l_step"], params["ab_step"],
     )
     return Quantized(
@@ -307,19 +340,42 @@ def validate(q: Quantized) -> None:
         The first rule broken, in one line.
     """
     _validate_params(q.params)
-    h = layout.Header(
+    layout.check_header_limits(_header(q))
+    _validate_regions(q)
+    _validate_features(q)
+
+
+def check_limits(q: Quantized) -> None:
+    """The encoder's budget check: canvas, counts and polygon sizes within the format's limits.
+
+    Raises
+    ------
+    layout.FormatLimitError
+        The first limit passed (a ``TpsvError`` and a ``ValueError``).
+    """
+    what = "model too large for the .tpsv format: "
+    layout.check_size_limits(_header(q), layout.FormatLimitError, what)
+    big = np.nonzero(q.vert_counts > layout.MAX_POLYGON_VERTICES)[0]
+    if big.size:
+        raise layout.FormatLimitError(
+            f"{what}outline polygon {big[0]} has {q.vert_counts[big[0]]} vertices "
+            f"(at most {layout.MAX_POLYGON_VERTICES})"
+        )
+
+
+def _header(q: Quantized) -> layout.Header:
+    """The header counts of ``q`` (section sizes left out)."""
+    return layout.Header(
         version=layout.VERSION, flags=0, width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
         vertices=int(q.xy.shape[0]),
         ctrl_points=int(q.ctrl.size // 8), features=int(q.st.shape[0]),
         compressed=(1, 1, 1), raw=(0, 0, 0),
     )
-    layout.check_header_limits(h)
-    _validate_regions(q)
-    _validate_features(q)
 
 
-def _validate_params(p: dict, error=TpsvFormatError) -> None:
+def _validate_params(p: dict, error=TpsvFormatError, unsupported=None) -> None:
+    """Raise ``error`` at the first bad params value (``unsupported`` for a kernel_size outside the set)."""
     for name, (typ, lo, hi, lo_open) in PARAM_FIELDS.items():
         value = p[name]
         # bool is an int subclass; msgpack keeps them apart, so must we.
@@ -330,20 +386,24 @@ def _validate_params(p: dict, error=TpsvFormatError) -> None:
         if value < lo or value > hi or (lo_open and value == lo):
             bracket = "(" if lo_open else "["
             raise error(f"params: {name} = {value} not in {bracket}{lo}, {hi}]")
+        if name in PARAM_CHOICES and value not in PARAM_CHOICES[name]:
+            raise (unsupported or error)(
+                f"params: {name} = {value} not one of {', '.join(map(str, PARAM_CHOICES[name]))}"
+            )
     extra = p["extra"]
     if len(extra) > MAX_EXTRA_ITEMS:
-        raise TpsvFormatError(f"params: {len(extra)} extra items exceed the limit {MAX_EXTRA_ITEMS}")
+        raise error(f"params: {len(extra)} extra items exceed the limit {MAX_EXTRA_ITEMS}")
     for key, value in extra.items():
         if not isinstance(key, str) or not 1 <= len(key) <= MAX_EXTRA_KEY:
-            raise TpsvFormatError(f"params: extra key {key!r} is not a str of 1..{MAX_EXTRA_KEY} characters")
+            raise error(f"params: extra key {key!r} is not a str of 1..{MAX_EXTRA_KEY} characters")
         if type(value) not in (bool, int, float, str):
-            raise TpsvFormatError(f"params: extra[{key!r}] has unsupported type {type(value).__name__}")
+            raise error(f"params: extra[{key!r}] has unsupported type {type(value).__name__}")
         if type(value) is int and not INT64_MIN <= value <= INT64_MAX:
-            raise TpsvFormatError(f"params: extra[{key!r}] beyond 64-bit range")
+            raise error(f"params: extra[{key!r}] beyond 64-bit range")
         if type(value) is float and not math.isfinite(value):
-            raise TpsvFormatError(f"params: extra[{key!r}] is not finite")
+            raise error(f"params: extra[{key!r}] is not finite")
         if type(value) is str and len(value) > MAX_EXTRA_STR:
-            raise TpsvFormatError(f"params: extra[{key!r}] longer than {MAX_EXTRA_STR} characters")
+            raise error(f"params: extra[{key!r}] longer than {MAX_EXTRA_STR} characters")
 
 
 def _validate_regions(q: Quantized) -> None:
@@ -364,6 +424,12 @@ def _validate_regions(q: Quantized) -> None:
     if bad.size:
         raise TpsvFormatError(
             f"outline polygon {bad[0]} has {q.vert_counts[bad[0]]} vertices (at least 3)"
+        )
+    bad = np.nonzero(q.vert_counts > layout.MAX_POLYGON_VERTICES)[0]
+    if bad.size:
+        raise TpsvFormatError(
+            f"outline polygon {bad[0]} has {q.vert_counts[bad[0]]} vertices "
+            f"(at most {layout.MAX_POLYGON_VERTICES})"
         )
 
 
@@ -427,6 +493,7 @@ def to_model(q: Quantized) -> Model:
     return Model(
         width=q.width, height=q.height, regions=_dequantize_regions(q),
         features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
+        encoding={ST_BITS_KEY: q.st_bits, ST_BITS_FOR_KEY: (q.width, q.height, p["st_steps"])},
     )
 
 

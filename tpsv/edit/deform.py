@@ -64,7 +64,7 @@ covered pixel, and that region's TPS at the clamped ``(S, T)``.
 
 Where a moved outline overlaps another region, the region drawn first wins:
 every region a call deforms is put in front (``Params.extra["front"]``, see
-``tpsv.render.raster.draw_order``), the most recently deformed first, unless
+``tpsv.render.pixelmap.draw_order``), the most recently deformed first, unless
 ``keep_order=True``. Region indices never change, so later edits of the same
 file can name the same regions.
 
@@ -94,7 +94,7 @@ from ..geometry import patch as hpatch
 from .common import check_region, copy_model
 from ..errors import TpsvError
 from ..model import Model, Patch
-from ..render.raster import FRONT_KEY, draw_order
+from ..render.pixelmap import FRONT_KEY, draw_order
 
 #: Outline edges are split to at most this length (px) before a non-affine map.
 SUBDIVIDE_PX = 1.0
@@ -158,10 +158,20 @@ def refresh_derivatives(ctrl: np.ndarray, moved: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- outlines
 
 
+#: Most outline points one deformation maps (after subdivision at 0.25 px for the
+#: glue step): real outlines stay far below; a hostile one is refused before any work.
+MAX_MAPPED_POINTS = 1 << 23
+
+#: Points mapped per batch through the inverse patch map (bounds its scratch memory).
+MAP_CHUNK = 1 << 16
+
+
 def _subdivide(poly: np.ndarray, step: float) -> np.ndarray:
     nxt = np.roll(poly, -1, axis=0)
     seg = np.hypot(*(nxt - poly).T)
     k = np.maximum(1, np.ceil(seg / step).astype(np.int64))
+    if not np.all(np.isfinite(seg)) or int(k.sum()) > MAX_MAPPED_POINTS:
+        raise TpsvError(f"outline too long to deform (more than {MAX_MAPPED_POINTS} points at {step} px)")
     t = np.concatenate([np.arange(n) / n for n in k])
     i = np.repeat(np.arange(len(poly)), k)
     return poly[i] + t[:, None] * (nxt[i] - poly[i])
@@ -195,10 +205,32 @@ def patch_mapper(old: Patch, new: Patch):
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
         if xy.shape[0] == 0:
             return xy.copy()
-        st = hpatch.inverse(old, xy) * scale
-        return hpatch.forward(new, st[:, 0], st[:, 1])
+        parts = []
+        for c in range(0, xy.shape[0], MAP_CHUNK):
+            st = hpatch.inverse(old, xy[c:c + MAP_CHUNK]) * scale
+            parts.append(hpatch.forward(new, st[:, 0], st[:, 1]))
+        return np.concatenate(parts)
 
     return phi
+
+
+def _check_outline_budget(model: Model) -> None:
+    """Refuse, before any work, a model whose outlines are too long to deform.
+
+    The glue step subdivides deformed outlines at 0.25 px and every mapped
+    outline at :data:`SUBDIVIDE_PX`; a hostile file with a few kilobytes of
+    long zig-zag edges would otherwise cost minutes and gigabytes.
+    """
+    total = 0.0
+    for reg in model.regions:
+        for p in reg.outline:
+            p = np.asarray(p, np.float64)
+            total += float(np.hypot(*(np.roll(p, -1, axis=0) - p).T).sum())
+    # traced outlines follow pixel edges (at most 2 per pixel, RDP only shortens them);
+    # twice that leaves room for earlier deformations that stretched them
+    cap = min(MAX_MAPPED_POINTS // 4, 4 * model.width * model.height + 16 * (model.width + model.height))
+    if not total <= cap:
+        raise TpsvError(f"outlines too long to deform ({total:.0f} px in all; at most {cap} px for this canvas)")
 
 
 def map_outline(outline, old: Patch, new: Patch) -> list[np.ndarray]:
@@ -209,6 +241,9 @@ def map_outline(outline, old: Patch, new: Patch) -> list[np.ndarray]:
     simplified by RDP at :data:`SIMPLIFY_PX`.
     """
     phi = patch_mapper(old, new)
+    total = sum(float(np.hypot(*(np.roll(p, -1, axis=0) - p).T).sum()) for p in map(np.asarray, outline))
+    if not total <= MAX_MAPPED_POINTS * SUBDIVIDE_PX:
+        raise TpsvError(f"outline too long to deform (more than {MAX_MAPPED_POINTS} points at {SUBDIVIDE_PX} px)")
     out = []
     for poly in outline:
         q = phi(_subdivide(np.asarray(poly, np.float64), SUBDIVIDE_PX))
@@ -384,6 +419,7 @@ def move_points(model: Model, moves, derivatives: str = "catmull-rom", keep_orde
         if r in order:
             order.remove(r)
         order.append(r)
+    _check_outline_budget(model)
     out = copy_model(model)
     mappers = {}
     for r in order:
@@ -453,6 +489,7 @@ def affine(model: Model, region, matrix, about: str = "centroid", keep_order: bo
         c = c + g - A @ g
     elif about != "origin":
         raise TpsvError(f"about {about!r} is not centroid or origin")
+    _check_outline_budget(model)
     out = copy_model(model)
     moved = [r] + (enclosed_regions(model, [r]) if attach else [])
     phi = lambda xy: np.asarray(xy, np.float64) @ A.T + c  # noqa: E731
@@ -623,6 +660,7 @@ def set_grid(model: Model, region, grid, keep_order: bool = False, attach: bool 
         ctrl = grid_from_json(grid)
     old = model.regions[r].patch
     new = _check_patch(r, ctrl)
+    _check_outline_budget(model)
     out = copy_model(model)
     _replace_patch(out, r, new, map_outline(model.regions[r].outline, old, new))
     mappers = {r: patch_mapper(old, new)}

@@ -37,17 +37,25 @@ wide at scale 1.
 Positions and widths follow the render scale.
 
 :func:`stylize` renders the abstraction at ``scale`` and draws the strokes
-over it; the result is deterministic.
+over it; the result is deterministic. :func:`stylize_model` does the same and
+also returns the abstraction and the number of strokes.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
 
 from ..color import lab_to_srgb
 from .common import concat_features, copy_model, feature_xy, sort_by_region
 from ..errors import TpsvError
 from ..model import CURVILINEAR, GRADATION, Features, Model
+from ..render.raster import render
 
 #: Cell side (px) of the gradation thinning at level 1; doubles with each level.
 BASE_CELL_PX = 3.0
@@ -126,10 +134,6 @@ def link_graph(model: Model, link: float = 2.0):
     n x n, weights = distances in px) and the features' pixel positions
     (F, 2) (all features).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import minimum_spanning_tree
-    from scipy.spatial import cKDTree
-
     f = model.features
     cur = np.flatnonzero(f.kind == CURVILINEAR)
     xy_all = feature_xy(model)
@@ -146,7 +150,7 @@ def link_graph(model: Model, link: float = 2.0):
     sd = np.zeros_like(d)
     sd[ok] = d[ok] / nrm[ok, None]
     side[paired] = sd
-    pairs = cKDTree(xy).query_pairs(float(link), output_type="ndarray")
+    pairs = _near_pairs(xy, float(link))
     if pairs.size == 0:
         return cur, empty, xy_all
     a, b = pairs[:, 0], pairs[:, 1]
@@ -159,6 +163,45 @@ def link_graph(model: Model, link: float = 2.0):
     w = np.hypot(*(xy[a] - xy[b]).T) + 1e-6  # zero weights would drop edges
     mst = minimum_spanning_tree(coo_matrix((w, (a, b)), shape=(n, n)).tocsr())
     return cur, (mst + mst.T).tocsr(), xy_all
+
+
+#: Most neighbours a feature links to: real curvilinear features have far fewer
+#: within the link distance; a pile of coincident ones would otherwise make
+#: n^2 pairs (a 745-byte file asked for 17 GB).
+MAX_LINK_NEIGHBOURS = 32
+
+#: Points per k-d tree query batch (bounds the (batch, k) result arrays).
+_QUERY_CHUNK = 1 << 15
+
+
+def _near_pairs(xy: np.ndarray, link: float) -> np.ndarray:
+    """Pairs ``(a, b)``, ``a < b``, of points within ``link`` px, each point's
+    :data:`MAX_LINK_NEIGHBOURS` nearest at most, as an (m, 2) int array sorted
+    like ``cKDTree.query_pairs`` (identical to it when no point has more
+    neighbours than that)."""
+    # coincident points (a k-d tree cannot split them: O(n^2) queries) link to one
+    # representative each; the representatives link among themselves
+    uniq, first, inverse = np.unique(xy, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    dup = np.flatnonzero(first[inverse] != np.arange(len(xy)))
+    same = np.column_stack([first[inverse[dup]], dup])
+    if len(uniq) < len(xy):
+        near = _near_pairs(uniq, link)
+        return np.unique(np.sort(np.concatenate([first[near], same]), axis=1), axis=0).astype(np.intp)
+    tree = cKDTree(xy)
+    k = min(MAX_LINK_NEIGHBOURS + 1, len(xy))
+    parts = []
+    for c in range(0, len(xy), _QUERY_CHUNK):
+        chunk = xy[c:c + _QUERY_CHUNK]
+        dist, idx = tree.query(chunk, k=k, distance_upper_bound=link)
+        dist, idx = dist.reshape(len(chunk), -1), idx.reshape(len(chunk), -1)
+        a = np.broadcast_to(np.arange(c, c + len(idx))[:, None], idx.shape)
+        keep = np.isfinite(dist) & (idx != a) & (dist <= link)
+        parts.append(np.column_stack([a[keep], idx[keep]]))
+    pairs = np.concatenate(parts) if parts else np.zeros((0, 2), np.int64)
+    # seen from both sides, or from one only when the other has more than k neighbours
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    return pairs.astype(np.intp)
 
 
 def stroke_chains(model: Model, link: float = 2.0, min_length: int = 3, graph=None) -> list[np.ndarray]:
@@ -199,8 +242,6 @@ def stroke_chains(model: Model, link: float = 2.0, min_length: int = 3, graph=No
 
 def component_length(model: Model, link: float = 2.0, graph=None) -> np.ndarray:
     """Per feature: total length (px) of the linked curvilinear component it belongs to (0 for gradation)."""
-    from scipy.sparse.csgraph import connected_components
-
     cur, mst, _ = graph if graph is not None else link_graph(model, link)
     out = np.zeros(len(model.features))
     if cur.size == 0:
@@ -216,24 +257,48 @@ def strokes(image: np.ndarray, model: Model, scale: float = 1.0, width: float = 
             min_length: int = 3, graph=None) -> np.ndarray:
     """Draw strokes along linked curvilinear features onto an image; returns uint8 RGB.
 
-    ``image`` (H, W, 3): float in ``[0, 1]`` or uint8, the render of ``model``
-    at ``scale``. ``graph``: a :func:`link_graph` of ``model`` to reuse.
-    """
-    import cv2
+    Parameters
+    ----------
+    image : ndarray (H, W, 3)
+        Float in ``[0, 1]`` or uint8: the render of ``model`` at ``scale``.
+    model : Model
+    scale, width : float
+        Render scale and stroke width in pixels at scale 1.
+    link, min_length
+        Linking distance and shortest chain (:func:`stroke_chains`).
+    graph : tuple, optional
+        A :func:`link_graph` of ``model`` to reuse.
 
-    if not (np.isfinite(width) and width > 0):
-        raise TpsvError(f"stroke width {width} must be a positive number")
-    img = image
-    if img.dtype != np.uint8:
-        img = np.clip(np.rint(np.asarray(img, np.float64) * 255.0), 0, 255).astype(np.uint8)
-    img = np.ascontiguousarray(img).copy()
+    Returns
+    -------
+    ndarray (H, W, 3) uint8
+    """
+    _check_width(width)
     graph = graph if graph is not None else link_graph(model, link)
     chains = stroke_chains(model, link=link, min_length=min_length, graph=graph)
+    return _draw_chains(image, model, chains, graph[2], scale, width)
+
+
+def _check_width(width) -> None:
+    if not (np.isfinite(width) and width > 0):
+        raise TpsvError(f"stroke width {width} must be a positive number")
+
+
+def _to_uint8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint8:
+        return image
+    return np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _draw_chains(image, model: Model, chains, xy, scale, width) -> np.ndarray:
+    """Draw ``chains`` (feature-index arrays) over ``image``; ``xy`` (F, 2) feature positions at scale 1."""
+    img = np.ascontiguousarray(_to_uint8(image)).copy()
     if not chains:
         return img
-    xy = graph[2] * float(scale)
+    xy = xy * float(scale)
     rgb = lab_to_srgb(model.features.lab.astype(np.float64))
-    thick = max(1, int(round(float(width) * float(scale))))
+    # 32767: OpenCV's largest line thickness (a wider stroke covers the image anyway)
+    thick = max(1, int(round(min(float(width) * float(scale), 32767.0))))
     fix = np.round(xy * (1 << _SHIFT)).astype(np.int64)
     lim = 1 << 28
     for ch in chains:
@@ -249,13 +314,67 @@ def strokes(image: np.ndarray, model: Model, scale: float = 1.0, width: float = 
     return img
 
 
-def stylize(model: Model, level: int = 2, with_strokes: bool = True, stroke_width: float = 1.0, scale: float = 1.0,
-            device: str = "cpu", link: float = 2.0, min_length: int = 3) -> np.ndarray:
-    """Abstraction at ``level`` rendered at ``scale``, with strokes over it; uint8 RGB ``(H, W, 3)``."""
-    from ..render.raster import render
+@dataclass(frozen=True)
+class Stylized:
+    """The result of :func:`stylize_model`.
 
+    Attributes
+    ----------
+    image : ndarray (H, W, 3) uint8
+        The abstraction rendered at the scale, with strokes over it.
+    model : Model
+        The abstraction (:func:`abstract`); it can be saved and edited further.
+    strokes : int
+        Stroke chains drawn (0 without strokes).
+    """
+
+    image: np.ndarray
+    model: Model
+    strokes: int
+
+
+def stylize_model(model: Model, level: int = 2, with_strokes: bool = True, stroke_width: float = 1.0,
+                  scale: float = 1.0, device: str = "cpu", link: float = 2.0, min_length: int = 3) -> Stylized:
+    """Abstraction at ``level`` rendered at ``scale``, with strokes over it, and what was made.
+
+    Parameters
+    ----------
+    model : Model
+    level : int
+        Abstraction level, ``0..MAX_LEVEL`` (:func:`abstract`).
+    with_strokes : bool
+        Draw strokes along linked curvilinear features (:func:`strokes`).
+    stroke_width, scale : float
+        Stroke width in pixels at scale 1; render scale.
+    device : str
+        Warp device of the render.
+    link, min_length
+        Linking distance and shortest chain (:func:`stroke_chains`).
+
+    Returns
+    -------
+    Stylized
+        The image, the abstracted model and the number of strokes drawn.
+    """
     m = abstract(model, level)
     img = render(m, scale=scale, device=device)
     if not with_strokes:
-        return np.clip(np.rint(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    return strokes(img, m, scale=scale, width=stroke_width, link=link, min_length=min_length)
+        return Stylized(_to_uint8(img), m, 0)
+    _check_width(stroke_width)
+    graph = link_graph(m, link)
+    chains = stroke_chains(m, link=link, min_length=min_length, graph=graph)
+    return Stylized(_draw_chains(img, m, chains, graph[2], scale, stroke_width), m, len(chains))
+
+
+def stylize(model: Model, level: int = 2, with_strokes: bool = True, stroke_width: float = 1.0, scale: float = 1.0,
+            device: str = "cpu", link: float = 2.0, min_length: int = 3) -> np.ndarray:
+    """Abstraction at ``level`` rendered at ``scale``, with strokes over it; uint8 RGB ``(H, W, 3)``.
+
+    The image of :func:`stylize_model` (parameters there).
+
+    Returns
+    -------
+    ndarray (H, W, 3) uint8
+    """
+    return stylize_model(model, level=level, with_strokes=with_strokes, stroke_width=stroke_width, scale=scale,
+                         device=device, link=link, min_length=min_length).image

@@ -1,6 +1,16 @@
-"""NVIDIA Warp kernels: TPS kernel construction, solve, inverse patch map, rasterisation.
+"""NVIDIA Warp kernels: inverse patch map, TPS solve, rasterisation (one code path for ``cpu`` and ``cuda``).
 
-The same kernels run on Warp's ``cpu`` device (CI) and on ``cuda``.
+* ``patchmap``: pixel -> ``(S, T)`` in its region's patch (the twin of ``tpsv.geometry.patch.inverse``);
+* ``device``: a kernel set's device arrays, bundled in ``@wp.struct`` types;
+* ``solve``: Eq. (4) for every sub-patch kernel, float64;
+* ``rasterise``: the per-pixel blend of the solved kernels, float32;
+* ``color``: Lab -> sRGB, the twin of ``tpsv.color``;
+* ``tps``: one namespace for the callers of the TPS stage (upload, solve, rasterise).
+
+The modules of this package import ``warp`` at their top; everything outside
+it imports them lazily, inside the functions that render, because importing
+Warp costs start-up time that commands which never render should not pay.
+Nothing initialises Warp at import: :func:`warp` does, quietly, on first use.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ def _stderr_silenced():
 def warp():
     """Import and initialise Warp once, quietly; return the module."""
     global _initialised
+    # lazy: tpsv.gpu is imported (for device names) by commands that never render
     import warp as wp
 
     if not _initialised:
@@ -58,7 +69,9 @@ def resolve_device(name: str | None) -> str:
     if name != "cpu" and not name.startswith("cuda"):
         raise TpsvError(f"unknown device {name!r}; use cpu or cuda")
     try:
-        wp.get_device(name)
+        # Warp prints CUDA driver errors on stderr before it raises; the raise is our one line
+        with contextlib.nullcontext() if os.environ.get("TPSV_WARP_VERBOSE") else _stderr_silenced():
+            wp.get_device(name)
     except Exception:
         raise TpsvError(f"device {name!r} is not available here (no CUDA GPU?)") from None
     return name

@@ -18,8 +18,13 @@ import cv2
 import numpy as np
 
 from ..color import srgb_to_lab
+from ..geometry.regions import build_regions, to_patch_space
 from ..model import GRADATION, Features, Model, Params
-from ..encode.vectorize import Geometry, build_geometry, to_patch_space
+from ..errors import TpsvError
+from .raster import MAX_ARRAY_PIXELS, render
+
+#: Params of a dense model: finest quantisation (bytes do not matter here), K = 32.
+DENSE_PARAMS = dict(kernel_size=32, overlap=0.5, st_steps=16, l_step=1, ab_step=1)
 
 
 def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Params | None = None) -> tuple[Model, np.ndarray]:
@@ -31,6 +36,7 @@ def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Param
     labels : ndarray (H, W) int, optional
         Label map (default: one region).
     params : Params, optional
+        Default :data:`DENSE_PARAMS`.
 
     Returns
     -------
@@ -39,12 +45,12 @@ def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Param
         Flat pixel index of each feature (features are sorted by region).
     """
     h, w = rgb.shape[:2]
-    geometry: Geometry = build_geometry(np.zeros((h, w), np.int32) if labels is None else labels)
+    regions, index = build_regions(np.zeros((h, w), np.int32) if labels is None else labels)
     yy, xx = np.mgrid[:h, :w]
     xy = np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], 1).astype(np.float64)
-    region = geometry.index.ravel().astype(np.int32)
+    region = index.ravel().astype(np.int32)
     order = np.argsort(region, kind="stable")
-    st = to_patch_space(geometry, xy[order], region[order])
+    st = to_patch_space([r.patch for r in regions], xy[order], region[order])
     feats = Features(
         region=region[order],
         st=st,
@@ -52,8 +58,7 @@ def dense_model(rgb: np.ndarray, labels: np.ndarray | None = None, params: Param
         kind=np.full(order.size, GRADATION, np.uint8),
         pair=np.full(order.size, -1, np.int32),
     )
-    model = Model(width=w, height=h, regions=geometry.regions, features=feats,
-                  params=params or Params(kernel_size=32))
+    model = Model(width=w, height=h, regions=regions, features=feats, params=params or Params(**DENSE_PARAMS))
     return model, order
 
 
@@ -85,8 +90,6 @@ def back_project(
     Model
         The model with fitted colours.
     """
-    from .raster import render
-
     h, w = rgb.shape[:2]
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
     current = target.copy()
@@ -111,9 +114,17 @@ def magnify_raster(
     """Magnify a photo to ``size`` = (width, height): dense model + back-projection.
 
     Returns the fitted model and the render at ``size``.
-    """
-    from .raster import render
 
+    Raises
+    ------
+    TpsvError
+        ``size`` is beyond what one in-memory render holds
+        (:data:`tpsv.render.raster.MAX_ARRAY_PIXELS`): the back-projection
+        compares whole renders with the photo, so it is refused before the fit.
+    """
+    if size[0] * size[1] > MAX_ARRAY_PIXELS:
+        raise TpsvError(f"magnifying a raster to {size[0]}x{size[1]} px is beyond tpsv's limit "
+                        f"({MAX_ARRAY_PIXELS:,} px); vectorize it and render the .tpsv instead")
     model, pixel = dense_model(rgb, labels)
     model = back_project(model, pixel, rgb, size, iterations=iterations, device=device)
     return model, render(model, width=size[0], height=size[1], device=device)

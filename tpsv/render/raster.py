@@ -1,24 +1,30 @@
 """Model -> pixels at any size (paper V and VII-A).
 
-1. ``outline.rasterize_regions``: the region of every output pixel, from the
-   vector outlines (no staircase when magnifying).
-2. ``gpu.patchmap.inverse_map``: ``(S, T)`` of every output pixel in its
-   region's patch.
+1-2. :func:`tpsv.render.pixelmap.pixel_map`: the region and the ``(S, T)`` of
+   every output pixel (outline rasterisation in drawing order, then the
+   inverse patch map).
 3. ``tps.group_kernels``: sub-patch kernels (derived at load time).
 4. ``gpu.tps``: build + solve every kernel, then rasterise with the blend;
    by default each kernel is clamped to its features' Lab range before
    blending (removes TPS overshoot; ``clamp=False`` for the plain TPS).
 
+Steps 3-4 are :func:`shade`, which the encoder calls on pixel maps it keeps.
+
 Output pixel ``(X, Y)`` at scale ``k`` samples ``((X + 0.5) / k, (Y + 0.5) / k)``
 of the model's pixel space (``tpsv.model``); for a size ``W x H`` the scale is
-per axis, ``W / model.width`` and ``H / model.height``.
+per axis, ``W / model.width`` and ``H / model.height``. Where outlines
+overlap, the draw order decides (:mod:`tpsv.render.pixelmap`).
 
-Draw order: where region outlines overlap (only after an edit such as
-``deform`` moves a region), the region drawn first keeps the pixel. Regions are
-drawn in index order, except that the regions listed in
-``model.params.extra["front"]`` (:data:`FRONT_KEY`, a comma-separated list of
-region indices, written by ``tpsv.edit.deform``) are drawn before all others, in
-the order listed: they are on top. See :func:`region_index`.
+Memory: :func:`render` draws an output of at most :data:`ONE_PIECE_PIXELS`
+pixels in one piece; a larger one, and any output of :func:`render_bands`
+over :data:`TILE_PIXELS`, in bands of rows of at most :data:`TILE_PIXELS`
+pixels, each band's pixels identical to the same rows of a
+one-piece render: the same sample points, the outlines prepared once, the
+pixels no outline covers given the same region (``outline.GapFill``), the
+kernels grouped and solved once. Peak memory then stays under
+:data:`MEMORY_BUDGET` for any output size that :func:`output_size` accepts
+(at most :data:`MAX_SIDE` px a side and :data:`MAX_PIXELS` px);
+:func:`render` returns one array up to :data:`MAX_ARRAY_PIXELS` pixels.
 
 A region without features (``vectorize`` never makes one) renders flat in the
 mean colour of all the model's features (mid grey, Lab (50, 0, 0), when the
@@ -32,17 +38,30 @@ import time
 
 import numpy as np
 
-from ..geometry import outline
-from ..tps import group as tps
+from .. import tps
 from ..errors import TpsvError
-
-#: ``Params.extra`` key: regions drawn on top (comma-separated indices, first on top).
-FRONT_KEY = "front"
+from ..gpu import resolve_device, warp
+from .pixelmap import BandMaps, no_tick, pixel_map
 
 #: Largest output side, in pixels.
 MAX_SIDE = 16384
 #: Largest output, in pixels.
 MAX_PIXELS = 1 << 28
+#: Peak memory (bytes) a render stays under whatever the output size (measured
+#: in ``tests/test_tiles.py``; the uncovered-pixel record gets a quarter of it).
+MEMORY_BUDGET = 1 << 30
+#: :func:`render` draws outputs of at most this many pixels in one piece (3840 x
+#: 2160 fits; about 45 bytes a pixel, host and device together), larger ones band by band.
+ONE_PIECE_PIXELS = 1 << 23
+#: Pixels per band of a banded render (:func:`render_bands`, :func:`render_png`).
+TILE_PIXELS = 1 << 22
+#: Largest output :func:`render` returns as one float32 array (12 bytes a pixel).
+MAX_ARRAY_PIXELS = 1 << 25
+#: Least pixels of coverage read at a time while preparing a banded render
+#: (``outline.GapFill``, about 16 bytes a pixel; otherwise a band's rows).
+_PREP_PIXELS = 1 << 18
+#: Pixels converted to 8 bits at a time (float64 on the way, as ``tpsv.image.encode_png``).
+_U8_PIXELS = 1 << 18
 
 
 def output_size(model, width=None, height=None, scale=None) -> tuple[int, int]:
@@ -64,8 +83,11 @@ def output_size(model, width=None, height=None, scale=None) -> tuple[int, int]:
             raise TpsvError(f"scale {scale!r} is not a number") from None
         if not np.isfinite(k) or k <= 0:
             raise TpsvError(f"scale {scale!r} must be a positive number")
-        W = int(round(model.width * k))
-        H = int(round(model.height * k))
+        fw, fh = model.width * k, model.height * k
+        if not (fw <= 4 * MAX_SIDE and fh <= 4 * MAX_SIDE):  # checked before rounding: 1e308 stays a float
+            raise TpsvError(_too_large(_size_text(fw), _size_text(fh)))
+        W = int(round(fw))
+        H = int(round(fh))
     else:
         try:
             W = None if width is None else _as_int(width)
@@ -79,8 +101,16 @@ def output_size(model, width=None, height=None, scale=None) -> tuple[int, int]:
     if W <= 0 or H <= 0:
         raise TpsvError(f"output size {W}x{H} is empty")
     if W > MAX_SIDE or H > MAX_SIDE or W * H > MAX_PIXELS:
-        raise TpsvError(f"output size {W}x{H} is too large (at most {MAX_SIDE} px per side)")
+        raise TpsvError(_too_large(W, H))
     return W, H
+
+
+def _size_text(v: float) -> str:
+    return str(int(round(v))) if v < 1e15 else f"{v:.3g}"
+
+
+def _too_large(W, H) -> str:
+    return f"output {W}x{H} px is larger than tpsv renders (at most {MAX_SIDE} px a side, {MAX_PIXELS:,} px in all)"
 
 
 def _as_int(v) -> int:
@@ -90,54 +120,114 @@ def _as_int(v) -> int:
     return int(f)
 
 
-def draw_order(model) -> list[int]:
-    """Region indices in drawing order (first drawn is on top where outlines overlap).
-
-    Index order, except that the regions named in ``model.params.extra["front"]``
-    come first, in the order listed. Raises :class:`TpsvError` when that entry
-    is not a comma-separated list of distinct region indices.
-    """
-    R = len(model.regions)
-    text = (model.params.extra or {}).get(FRONT_KEY, "")
-    if text in ("", None):
-        return list(range(R))
-    front = []
-    try:
-        for tok in str(text).split(","):
-            front.append(int(tok))
-    except ValueError:
-        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} is not a list of region indices") from None
-    if len(set(front)) != len(front) or any(r < 0 or r >= R for r in front):
-        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} names a region twice or one that does not exist")
-    rest = [r for r in range(R) if r not in set(front)]
-    return front + rest
-
-
-def region_index(model, width: int, height: int) -> np.ndarray:
-    """Region of every output pixel ``(height, width)`` int32, honouring :func:`draw_order`.
-
-    ``outline.rasterize_regions`` on the regions in drawing order, mapped back
-    to region indices (identical to it when nothing is in front).
-    """
-    order = draw_order(model)
-    if order == list(range(len(model.regions))):
-        return outline.rasterize_regions(model.regions, width, height, src_size=(model.width, model.height))
-    idx = outline.rasterize_regions([model.regions[r] for r in order], width, height, src_size=(model.width, model.height))
-    lut = np.asarray(order + [-1], np.int32)
-    return lut[idx]
-
-
 def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True) -> np.ndarray:
     """Render ``model``; returns float32 sRGB ``(H, W, 3)`` in ``[0, 1]``.
 
-    ``kernels``: a :class:`tpsv.tps.group.KernelSet` from an earlier
+    ``kernels``: a :class:`tpsv.tps.KernelSet` from an earlier
     ``tps.group_kernels(model)`` to reuse (it must belong to this model).
     ``threads``: host threads for CPU launches (default: all cores).
     ``clamp``: clamp each kernel to its features' Lab range before blending
     (``tpsv.gpu.tps``; False gives the plain localised TPS).
+
+    Outputs over :data:`ONE_PIECE_PIXELS` pixels are rendered in bands
+    (:func:`render_bands`, identical pixels) into the array; outputs over
+    :data:`MAX_ARRAY_PIXELS` are refused (:class:`TpsvError`): write them
+    band by band with :func:`render_bands`.
     """
-    img, _ = _render(model, width, height, scale, device, kernels, threads, clamp, timed=False)
+    W, H = output_size(model, width, height, scale)
+    if W * H <= ONE_PIECE_PIXELS:
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False)
+        return img
+    if W * H > MAX_ARRAY_PIXELS:
+        raise TpsvError(f"output {W}x{H} px is too large to hold in memory as one image "
+                        f"(at most {MAX_ARRAY_PIXELS:,} px); render it band by band (render_bands)")
+    img = np.empty((H, W, 3), np.float32)
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, TILE_PIXELS):
+        img[y0:y0 + rows.shape[0]] = rows
     return img
+
+
+def render_bands(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
+                 clamp: bool = True, max_pixels: int = TILE_PIXELS):
+    """Render ``model`` band by band: yields ``(y0, rows)``, top to bottom.
+
+    ``rows`` is uint8 sRGB ``(h, W, 3)``, rows ``y0 .. y0 + h`` of the output,
+    rounded as ``tpsv.image.encode_png`` rounds :func:`render`'s floats, so
+    the bands put together are exactly the 8-bit image of :func:`render`.
+    Each band holds at most ``max_pixels`` pixels (one row at least); an
+    output of at most ``max_pixels`` pixels comes as one band. Memory stays
+    in proportion to a band whatever the output size (module docstring).
+    Arguments as :func:`render`.
+
+    Yields
+    ------
+    y0 : int
+    rows : ndarray (h, W, 3) uint8
+    """
+    W, H = output_size(model, width, height, scale)
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels):
+        yield y0, to_uint8(rows)
+
+
+def render_png(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
+               clamp: bool = True, max_pixels: int = TILE_PIXELS):
+    """The PNG file of the render, piece by piece: what ``tpsv render`` writes.
+
+    An output of at most ``max_pixels`` pixels is one piece,
+    ``tpsv.image.encode_png(render(...))`` (the bytes tpsv has always
+    written). A larger one is streamed (:mod:`tpsv.png`) from
+    :func:`render_bands`: memory stays bounded, and the decoded pixels are the
+    same 8-bit image. Arguments as :func:`render_bands`.
+
+    Yields
+    ------
+    bytes
+        Consecutive pieces of the file.
+    """
+    from ..image import encode_png
+    from ..png import png_chunks
+
+    W, H = output_size(model, width, height, scale)
+    if W * H <= max_pixels:
+        yield encode_png(render(model, W, H, None, device, kernels, threads, clamp))
+        return
+    yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels))
+
+
+def to_uint8(rgb: np.ndarray) -> np.ndarray:
+    """8-bit sRGB of float sRGB in ``[0, 1]``, rounded as ``tpsv.image.encode_png`` rounds (a few rows at a time)."""
+    out = np.empty(rgb.shape, np.uint8)
+    flat_in = rgb.reshape(-1, 3) if rgb.ndim == 3 else rgb.reshape(-1)
+    flat_out = out.reshape(flat_in.shape)
+    for i in range(0, flat_in.shape[0], _U8_PIXELS):
+        part = np.asarray(flat_in[i:i + _U8_PIXELS], np.float64)
+        flat_out[i:i + _U8_PIXELS] = np.clip(np.rint(part * 255.0), 0, 255).astype(np.uint8)
+    return out
+
+
+def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int):
+    """``(y0, float32 rows)`` of the ``W x H`` render, in bands of at most ``max_pixels`` pixels."""
+    max_pixels = max(int(max_pixels), 1)
+    if W * H <= max_pixels:
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False)
+        yield 0, img
+        return
+    from ..gpu import tps as gtps
+
+    device = resolve_device(device)
+    rows = max(1, max_pixels // W)
+    ks = kernels if kernels is not None else tps.group_kernels(model)
+    if ks.grid.shape[0] != len(model.regions):
+        raise TpsvError("the kernel set does not belong to this model")
+    maps = BandMaps(model, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
+    dk = gtps.solve(gtps.upload(ks, device), threads=threads)
+    for y0 in range(0, H, rows):
+        y1 = min(y0 + rows, H)
+        pm = maps.band(y0, y1)
+        out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=threads, clamp=clamp)
+        del pm
+        yield y0, out.numpy().reshape(y1 - y0, W, 3)
+        del out
 
 
 def render_timed(model, width=None, height=None, scale=None, device: str = "cpu", repeat: int = 1, threads=None, clamp: bool = True):
@@ -150,42 +240,76 @@ def render_timed(model, width=None, height=None, scale=None, device: str = "cpu"
     with a device synchronisation. The first call on a device also compiles
     or loads Warp modules: call once before timing (``repeat >= 2``).
     """
+    W, H = output_size(model, width, height, scale)
+    if W * H > ONE_PIECE_PIXELS:
+        raise TpsvError(f"output {W}x{H} px is rendered in bands; stage timings are for at most {ONE_PIECE_PIXELS:,} px")
     best: dict = {}
     img = None
     for _ in range(max(1, int(repeat))):
-        img, t = _render(model, width, height, scale, device, None, threads, clamp, timed=True)
+        img, t = _render(model, W, H, None, device, None, threads, clamp, timed=True)
         for k, v in t.items():
             best[k] = min(best.get(k, np.inf), v)
     best["total"] = sum(v for k, v in best.items() if k != "total")
     return img, best
 
 
-def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool):
-    from ..gpu import resolve_device
+class Stopwatch:
+    """Wall time per stage, each stage ending with a device synchronisation.
+
+    Call it with a stage name when the stage is done; ``times`` maps names to
+    seconds since the previous call (or since the stopwatch was made).
+
+    Parameters
+    ----------
+    device : str
+        Warp device to synchronise.
+    """
+
+    def __init__(self, device: str):
+        self.device = device
+        self.times: dict = {}
+        self._wp = warp()
+        self._t0 = time.perf_counter()
+
+    def __call__(self, name: str) -> None:
+        self._wp.synchronize_device(self.device)
+        now = time.perf_counter()
+        self.times[name] = now - self._t0
+        self._t0 = now
+
+
+def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, clamp: bool = True, tick=no_tick) -> np.ndarray:
+    """Render steps 3-4: the colours of pixels whose region and ``(S, T)`` are known.
+
+    Parameters
+    ----------
+    model : Model
+    index : (H, W) int32 ndarray or device array
+        Region of every pixel (``PixelMap.index`` / ``index_d``).
+    st : (H, W, 2) float32 ndarray or (H, W) vec2 device array
+        ``(S, T)`` of every pixel (``PixelMap.st`` / ``st_d``).
+    device : str
+        Warp device.
+    kernels : KernelSet, optional
+        ``tps.group_kernels(model)`` (or :func:`tpsv.tps.recolor` of one) to reuse.
+    threads : int, optional
+        Host threads for CPU launches.
+    clamp : bool
+        Clamp each kernel to its features' Lab range before blending.
+    tick : callable(str), optional
+        Called after the ``group``, ``upload``, ``solve``, ``rasterise`` and
+        ``download`` stages.
+
+    Returns
+    -------
+    ndarray (H, W, 3) float32
+        sRGB in ``[0, 1]``.
+    """
+    # gpu.tps imports Warp and defines its kernels: only commands that render pay for it
     from ..gpu import tps as gtps
-    from ..gpu.patchmap import inverse_map
 
-    W, H = output_size(model, width, height, scale)
     device = resolve_device(device)
-    import warp as wp
-
-    times: dict = {}
-    t0 = time.perf_counter()
-
-    def tick(name):
-        nonlocal t0
-        if timed:
-            wp.synchronize_device(device)
-            now = time.perf_counter()
-            times[name] = now - t0
-            t0 = now
-
-    index = region_index(model, W, H)
-    tick("regions")
-    index_d = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=device)
-    tick("upload_regions")
-    st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)
-    tick("patchmap")
+    H, W = index.shape[:2]
     ks = kernels if kernels is not None else tps.group_kernels(model)
     if ks.grid.shape[0] != len(model.regions):
         raise TpsvError("the kernel set does not belong to this model")
@@ -194,8 +318,19 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
     tick("upload")
     gtps.solve(dk, threads=threads)
     tick("solve")
-    out = gtps.rasterise(dk, index_d, st_d, threads=threads, clamp=clamp)
+    out = gtps.rasterise(dk, index, st, threads=threads, clamp=clamp)
     tick("rasterise")
     img = out.numpy().reshape(H, W, 3)
     tick("download")
-    return img, times
+    return img
+
+
+def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool):
+    """:func:`render` and, when ``timed``, the seconds per stage (else an empty dict)."""
+    W, H = output_size(model, width, height, scale)
+    device = resolve_device(device)
+    watch = Stopwatch(device) if timed else None
+    tick = watch if timed else no_tick
+    pm = pixel_map(model, W, H, device, tick)
+    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick)
+    return img, (watch.times if timed else {})

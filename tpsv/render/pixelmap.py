@@ -1,0 +1,263 @@
+"""The pixel map: the region and the ``(S, T)`` of every output pixel (render steps 1-2).
+
+1. ``outline.rasterize_regions``: the region of every output pixel, from the
+   vector outlines (no staircase when magnifying), in drawing order
+   (:func:`region_index`).
+2. ``gpu.patchmap.inverse_map``: ``(S, T)`` of every output pixel in its
+   region's patch.
+
+Everything that needs to know which feature colours reach which pixel builds
+this map here: the renderer (:mod:`tpsv.render.raster`), the incremental
+renderer (:mod:`tpsv.render.live`) and the encoder's colour fit and feature
+lattices at scale 1 (``tpsv.encode.fit.pixel_maps``,
+``tpsv.encode.vectorize.Geometry.pixel_st``), so the fit sees what the
+renderer draws.
+
+Output pixel ``(X, Y)`` of a ``W x H`` map samples
+``((X + 0.5) * Ws / W, (Y + 0.5) * Hs / H)`` of the model's pixel space
+(``tpsv.model``), ``(Ws, Hs)`` the model's size.
+
+:class:`BandMaps` gives the same maps band of rows by band of rows, for
+outputs too large to map whole (``tpsv.render.raster.render_bands``).
+
+Draw order: where region outlines overlap (only after an edit such as
+``deform`` moves a region), the region drawn first keeps the pixel. Regions are
+drawn in index order, except that the regions listed in
+``model.params.extra["front"]`` (:data:`FRONT_KEY`, a comma-separated list of
+region indices, written by ``tpsv.edit.deform``) are drawn before all others, in
+the order listed: they are on top. See :func:`region_index`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..errors import TpsvError
+from ..geometry import outline
+from ..gpu import warp
+
+#: ``Params.extra`` key: regions drawn on top (comma-separated indices, first on top).
+FRONT_KEY = "front"
+
+
+def draw_order(model) -> list[int]:
+    """Region indices in drawing order (first drawn is on top where outlines overlap).
+
+    Index order, except that the regions named in ``model.params.extra["front"]``
+    come first, in the order listed.
+
+    Parameters
+    ----------
+    model : Model
+
+    Returns
+    -------
+    list of int
+
+    Raises
+    ------
+    TpsvError
+        When that entry is not a comma-separated list of distinct region indices.
+    """
+    R = len(model.regions)
+    text = (model.params.extra or {}).get(FRONT_KEY, "")
+    if text in ("", None):
+        return list(range(R))
+    front = []
+    try:
+        for tok in str(text).split(","):
+            front.append(int(tok))
+    except ValueError:
+        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} is not a list of region indices") from None
+    if len(set(front)) != len(front) or any(r < 0 or r >= R for r in front):
+        raise TpsvError(f"params.extra[{FRONT_KEY!r}] = {text!r} names a region twice or one that does not exist")
+    rest = [r for r in range(R) if r not in set(front)]
+    return front + rest
+
+
+def region_index(model, width: int, height: int) -> np.ndarray:
+    """Region of every output pixel, honouring :func:`draw_order` (render step 1).
+
+    ``outline.rasterize_regions`` on the regions in drawing order, mapped back
+    to region indices (identical to it when nothing is in front).
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int
+        Output size.
+
+    Returns
+    -------
+    ndarray (height, width) int32
+        Region index, ``-1`` outside every region.
+    """
+    order = draw_order(model)
+    if order == list(range(len(model.regions))):
+        return outline.rasterize_regions(model.regions, width, height, src_size=(model.width, model.height))
+    idx = outline.rasterize_regions([model.regions[r] for r in order], width, height, src_size=(model.width, model.height))
+    lut = np.asarray(order + [-1], np.int32)
+    return lut[idx]
+
+
+def no_tick(name: str) -> None:
+    """A stage callback that does nothing (the default ``tick``)."""
+
+
+@dataclass
+class PixelMap:
+    """Region index and ``(S, T)`` of every output pixel, on the host and on a Warp device.
+
+    Attributes
+    ----------
+    index : ndarray (H, W) int32
+        Region of every pixel (``-1``: outside every region).
+    index_d : wp.array2d(int32)
+        ``index`` on the device.
+    st_d : wp.array2d(vec2)
+        Normalised ``(S, T)`` of every pixel in its region's patch, on the
+        device (``(-1, -1)`` outside every region).
+    """
+
+    index: np.ndarray
+    index_d: object
+    st_d: object
+    _st: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def st(self) -> np.ndarray:
+        """``(S, T)`` copied to the host: ndarray (H, W, 2) float32 (copied once, then cached)."""
+        if self._st is None:
+            self._st = self.st_d.numpy().reshape(self.index.shape + (2,))
+        return self._st
+
+    @classmethod
+    def build(cls, regions, index: np.ndarray, src_size: tuple[int, int], device: str = "cpu",
+              tick: Callable[[str], None] = no_tick) -> "PixelMap":
+        """Render step 2 for a given region map: upload it and invert every pixel's patch.
+
+        Parameters
+        ----------
+        regions : list of Region
+        index : ndarray (H, W) int
+            Region of every output pixel (:func:`region_index`).
+        src_size : (Ws, Hs)
+            Model size in pixels.
+        device : str
+            Warp device.
+        tick : callable(str), optional
+            Called with ``"upload_regions"`` and ``"patchmap"`` after each
+            stage (the renderer's timings).
+
+        Returns
+        -------
+        PixelMap
+        """
+        # gpu.patchmap imports Warp and defines its kernels: only commands that render pay for it
+        from ..gpu.patchmap import inverse_map
+
+        wp = warp()
+        index = np.ascontiguousarray(index, np.int32)
+        index_d = wp.array(index, dtype=wp.int32, device=device)
+        tick("upload_regions")
+        st_d = inverse_map([r.patch for r in regions], index_d, src_size, device=device)
+        tick("patchmap")
+        return cls(index=index, index_d=index_d, st_d=st_d)
+
+
+def pixel_map(model, width: int | None = None, height: int | None = None, device: str = "cpu",
+              tick: Callable[[str], None] = no_tick) -> PixelMap:
+    """The pixel map of ``model`` at ``width x height`` (default: the model's size, scale 1).
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int, optional
+        Output size.
+    device : str
+        Warp device.
+    tick : callable(str), optional
+        Called with ``"regions"``, ``"upload_regions"`` and ``"patchmap"``
+        after each stage.
+
+    Returns
+    -------
+    PixelMap
+    """
+    W = model.width if width is None else int(width)
+    H = model.height if height is None else int(height)
+    index = region_index(model, W, H)
+    tick("regions")
+    return PixelMap.build(model.regions, index, (model.width, model.height), device, tick)
+
+
+class BandMaps:
+    """Pixel maps of bands of output rows, identical to the rows of :func:`pixel_map` (tiled rendering).
+
+    Everything that does not depend on the band is prepared once: the edges of
+    every outline (``outline.Coverage``), the region of every pixel no
+    outline covers (``outline.GapFill``, one pass over the coverage; the same
+    labels as the distance transform of :func:`region_index`), and the
+    patches on the device. :meth:`band` then costs memory in proportion to the
+    band only.
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int
+        Output size.
+    device : str
+        Warp device.
+    band_rows : int
+        Rows per coverage read while preparing.
+    max_gap_bytes : int, optional
+        Refuse outputs whose uncovered pixels need more memory than this
+        (``outline.GapFill``).
+    """
+
+    def __init__(self, model, width: int, height: int, device: str = "cpu", band_rows: int = 256,
+                 max_gap_bytes: int | None = None):
+        from ..gpu.patchmap import PatchSet
+
+        self.width, self.height = int(width), int(height)
+        self.device = device
+        order = draw_order(model)
+        if order == list(range(len(model.regions))):
+            self._lut, regions = None, model.regions
+        else:
+            self._lut, regions = np.asarray(order + [-1], np.int32), [model.regions[r] for r in order]
+        self.coverage = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
+        self.gaps = outline.GapFill(self.coverage, band_rows, max_gap_bytes)
+        self.patch_set = PatchSet.build([r.patch for r in model.regions], device)
+        # the sample points of gpu.patchmap.inverse_map, in float32 as its kernel computes them
+        self._sx = np.float32(float(model.width) / float(self.width))
+        self._sy = np.float32(float(model.height) / float(self.height))
+
+    def index(self, a: int, b: int) -> np.ndarray:
+        """Rows ``a <= y < b`` of :func:`region_index`: ndarray (b - a, width) int32."""
+        idx = self.gaps.apply(self.coverage.rows(a, b), a)
+        return idx if self._lut is None else self._lut[idx]
+
+    def band(self, a: int, b: int) -> PixelMap:
+        """The pixel map of rows ``a <= y < b``: equal to those rows of :func:`pixel_map`."""
+        from ..gpu.patchmap import _points_kernel, _search
+
+        wp = warp()
+        idx = np.ascontiguousarray(self.index(a, b), np.int32)
+        h, W = idx.shape
+        xy = np.empty((h, W, 2), np.float32)
+        xy[..., 0] = (np.arange(W, dtype=np.float32) + np.float32(0.5)) * self._sx
+        xy[..., 1] = ((np.arange(a, b, dtype=np.float32) + np.float32(0.5)) * self._sy)[:, None]
+        index_d = wp.array(idx, dtype=wp.int32, device=self.device)
+        xy_d = wp.array(xy.reshape(-1, 2), dtype=wp.vec2, device=self.device)
+        del xy
+        st = wp.empty(h * W, dtype=wp.vec2, device=self.device)
+        wp.launch(_points_kernel, dim=h * W, device=self.device,
+                  inputs=[self.patch_set.arrays, _search(0.001, 8, 12), index_d.reshape((h * W,)), xy_d, st])
+        return PixelMap(index=idx, index_d=index_d, st_d=st.reshape((h, W)))
+
+
+__all__ = ["BandMaps", "FRONT_KEY", "PixelMap", "draw_order", "no_tick", "pixel_map", "region_index"]
