@@ -249,10 +249,16 @@ def _inverse(ps: PatchArrays, opt: Search, r: int, p: wp.vec2):
 
 
 @wp.kernel
-def _map_kernel(ps: PatchArrays, opt: Search, index: wp.array2d(dtype=wp.int32), sx: float, sy: float, out: wp.array2d(dtype=wp.vec2)):
-    """Every output pixel: its source point ``((x + 0.5) sx, (y + 0.5) sy)`` in its region."""
+def _map_kernel(ps: PatchArrays, opt: Search, index: wp.array2d(dtype=wp.int32), sx: float, sy: float, y0: int,
+                out: wp.array2d(dtype=wp.vec2)):
+    """Every output pixel of rows ``y0 ..``: its source point ``((x + 0.5) sx, (y0 + y + 0.5) sy)`` in its region.
+
+    A band of rows and the whole frame run this same kernel, so their pixels
+    are bit-identical on every device (a separate kernel may be compiled with
+    other floating-point contractions on CUDA).
+    """
     y, x = wp.tid()
-    p = wp.vec2((float(x) + 0.5) * sx, (float(y) + 0.5) * sy)
+    p = wp.vec2((float(x) + 0.5) * sx, (float(y + y0) + 0.5) * sy)
     out[y, x] = _inverse(ps, opt, index[y, x], p)
 
 
@@ -333,6 +339,8 @@ def inverse_map(
     n_itr: int = 8,
     newton: int = 12,
     patch_set: PatchSet | None = None,
+    out_size: tuple[int, int] | None = None,
+    row0: int = 0,
 ):
     """Normalised ``(S, T)`` of every output pixel, as a device array.
 
@@ -351,10 +359,15 @@ def inverse_map(
         Stopping rules (module docstring).
     patch_set : PatchSet, optional
         The patches already on the device (then ``device`` is its device).
+    out_size : (W, H), optional
+        Size of the whole output when ``index`` holds only a band of its rows
+        (default: ``index``'s own shape).
+    row0 : int
+        Output row of ``index``'s first row (a band's offset).
 
     Returns
     -------
-    wp.array2d(dtype=wp.vec2), shape (H, W), on ``device``.
+    wp.array2d(dtype=wp.vec2), shape of ``index``, on ``device``.
     """
     ps = patch_set if patch_set is not None else PatchSet.build(patches, device)
     device = ps.device
@@ -362,9 +375,11 @@ def inverse_map(
         index = wp.array(np.ascontiguousarray(index, np.int32), dtype=wp.int32, device=device)
     H, W = index.shape
     out = wp.empty((H, W), dtype=wp.vec2, device=device)
-    sx = float(src_size[0]) / float(W)
-    sy = float(src_size[1]) / float(H)
-    wp.launch(_map_kernel, dim=(H, W), inputs=[ps.arrays, _search(t_loc, n_itr, newton), index, sx, sy, out], device=device)
+    W_out, H_out = out_size if out_size is not None else (W, H)
+    sx = float(src_size[0]) / float(W_out)
+    sy = float(src_size[1]) / float(H_out)
+    wp.launch(_map_kernel, dim=(H, W), inputs=[ps.arrays, _search(t_loc, n_itr, newton), index, sx, sy, int(row0), out],
+              device=device)
     return out
 
 

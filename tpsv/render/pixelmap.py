@@ -232,9 +232,7 @@ class BandMaps:
         self.coverage = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
         self.gaps = outline.GapFill(self.coverage, band_rows, max_gap_bytes)
         self.patch_set = PatchSet.build([r.patch for r in model.regions], device)
-        # the sample points of gpu.patchmap.inverse_map, in float32 as its kernel computes them
-        self._sx = np.float32(float(model.width) / float(self.width))
-        self._sy = np.float32(float(model.height) / float(self.height))
+        self._src = (model.width, model.height)
 
     def index(self, a: int, b: int) -> np.ndarray:
         """Rows ``a <= y < b`` of :func:`region_index`: ndarray (b - a, width) int32."""
@@ -243,21 +241,15 @@ class BandMaps:
 
     def band(self, a: int, b: int) -> PixelMap:
         """The pixel map of rows ``a <= y < b``: equal to those rows of :func:`pixel_map`."""
-        from ..gpu.patchmap import _points_kernel, _search
+        from ..gpu.patchmap import inverse_map
 
         wp = warp()
         idx = np.ascontiguousarray(self.index(a, b), np.int32)
-        h, W = idx.shape
-        xy = np.empty((h, W, 2), np.float32)
-        xy[..., 0] = (np.arange(W, dtype=np.float32) + np.float32(0.5)) * self._sx
-        xy[..., 1] = ((np.arange(a, b, dtype=np.float32) + np.float32(0.5)) * self._sy)[:, None]
         index_d = wp.array(idx, dtype=wp.int32, device=self.device)
-        xy_d = wp.array(xy.reshape(-1, 2), dtype=wp.vec2, device=self.device)
-        del xy
-        st = wp.empty(h * W, dtype=wp.vec2, device=self.device)
-        wp.launch(_points_kernel, dim=h * W, device=self.device,
-                  inputs=[self.patch_set.arrays, _search(0.001, 8, 12), index_d.reshape((h * W,)), xy_d, st])
-        return PixelMap(index=idx, index_d=index_d, st_d=st.reshape((h, W)))
+        # the whole frame's kernel with a row offset: the same sample points and code
+        st = inverse_map(None, index_d, self._src, patch_set=self.patch_set,
+                         out_size=(self.width, self.height), row0=a)
+        return PixelMap(index=idx, index_d=index_d, st_d=st)
 
 
 __all__ = ["BandMaps", "FRONT_KEY", "PixelMap", "draw_order", "no_tick", "pixel_map", "region_index"]
