@@ -341,7 +341,8 @@ def _quantized_ops(q: quant.Quantized, rng: random.Random, ops: list) -> quant.Q
         return dataclasses.replace(q, kind=kind)
     if op == "st" and n:
         st = q.st.copy()
-        st[rng.randrange(n), rng.randrange(2)] = rng.choice((2**q.st_bits, 65535))
+        # one past the top of the declared range (an earlier op may have made st_bits absurd)
+        st[rng.randrange(n), rng.randrange(2)] = rng.choice((min(2 ** max(q.st_bits, 0), 2**62), 65535))
         return dataclasses.replace(q, st=st)
     if op == "st_bits":
         return dataclasses.replace(q, st_bits=rng.choice((0, 7, 8, 16, 17, 64, -1)))
