@@ -5,16 +5,21 @@ from __future__ import annotations
 import json
 
 import cv2
+import numpy as np
+import pytest
 from click.testing import CliRunner
 
+from tpsv import metrics
+from tpsv.bench.tables import edge_table, edge_table_text
 from tpsv.cli import main
 
 
 def test_bench_tiny(tmp_path, small_png):
     out = tmp_path / "bench"
-    r = CliRunner().invoke(main, ["bench", str(small_png), "--iterations", "2", "--grid", "2", "--out", str(out)])
+    r = CliRunner().invoke(main, ["bench", str(small_png), "--iterations", "2", "--grid", "2", "--edges", "1",
+                                      "--out", str(out)])
     assert r.exit_code == 0, r.output
-    for title in ("Table I", "Table II", "Magnification", "CPU seconds"):
+    for title in ("Table I", "Table II", "Magnification", "GMSD", "Edges: synthetic shapes", "CPU seconds"):
         assert title in r.stdout
     report = json.loads((out / "bench.json").read_text())
     (img,) = report["images"]
@@ -32,14 +37,19 @@ def test_bench_tiny(tmp_path, small_png):
     assert t["local_packed"]["seconds"] > 0 and t["global_cpu"]["seconds"] > 0
     m = img["magnification"]
     assert set(m) >= {"tpsv", "bicubic", "lanczos"}
+    assert all(0 <= m[k]["gmsd"] < 0.5 for k in ("tpsv", "bicubic", "lanczos"))
+    (edge,) = report["edges"]["variants"]
+    assert edge["seed"] == 0 and all(edge[k]["psnr"] > 15 for k in ("tpsv", "bicubic", "lanczos"))
     assert cv2.imread(str(out / "rd-small.png")) is not None
 
 
 def test_bench_json_stdout_is_pure_json(small_png):
-    r = CliRunner().invoke(main, ["bench", str(small_png), "--iterations", "1", "--grid", "0", "--json"])
+    r = CliRunner().invoke(main, ["bench", str(small_png), "--iterations", "1", "--grid", "0", "--edges", "0",
+                                      "--json"])
     assert r.exit_code == 0, r.output
     report = json.loads(r.stdout)
     assert report["images"][0]["grid"] == []
+    assert report["edges"] is None
 
 
 def test_bench_bad_image(tmp_path):
@@ -57,3 +67,60 @@ def test_bench_tpsv_input_gives_timing_only(tmp_path, small_png):
     assert r.exit_code == 0, r.output
     (img,) = json.loads(r.stdout)["images"]
     assert "initial" not in img and img["timing"]["local_packed"]["seconds"] > 0
+    assert json.loads(r.stdout)["edges"] is None  # no raster input: no quality tables
+
+
+def test_edge_table_small():
+    e = edge_table(variants=2, size=32, scale=4, iterations=1)
+    assert e["size"] == 32 and e["scale"] == 4 and [v["seed"] for v in e["variants"]] == [0, 1]
+    for v in e["variants"] + [e["mean"]]:
+        for k in ("tpsv", "bicubic", "lanczos"):
+            assert 15 < v[k]["psnr"] < 80 and 0 < v[k]["gmsd"] < 0.5
+    text = edge_table_text(e)
+    assert "seed 1" in text and "mean" in text and "lanczos" in text
+
+
+# --------------------------------------------------------------------------- GMSD
+
+
+def _blurred(rgb, sigma):
+    return cv2.GaussianBlur(rgb, (0, 0), sigma) if sigma else rgb
+
+
+def test_gmsd_identical_is_zero(small_rgb):
+    assert metrics.gmsd(small_rgb, small_rgb) == 0.0
+    u8 = np.round(small_rgb * 255).astype(np.uint8)
+    assert metrics.gmsd(u8, u8) == 0.0
+    # uint8 and float in [0, 1] are the same scale
+    assert metrics.gmsd(u8, u8 // 2) == pytest.approx(metrics.gmsd(u8 / 255.0, (u8 // 2) / 255.0))
+
+
+def test_gmsd_grows_with_blur_and_is_symmetric(small_rgb):
+    scores = [metrics.gmsd(small_rgb, _blurred(small_rgb, s)) for s in (0, 0.7, 1.5, 3.0)]
+    assert scores[0] == 0 and all(a < b for a, b in zip(scores, scores[1:]))
+    b = _blurred(small_rgb, 1.5)
+    assert metrics.gmsd(small_rgb, b) == metrics.gmsd(b, small_rgb)
+
+
+def test_gmsd_hand_checked():
+    """Black against a 4x8 grey step (left half 0, right half 90, all channels).
+
+    After the 2x2 average and the downsample: two rows of [0, 0, 90, 90]. Prewitt /3
+    with zero padding: |gx| = 2/3 |x[j-1] - x[j+1]| = [0, 60, 60, 60] and |gy| =
+    1/3 (x[j-1] + x[j] + x[j+1]) = [0, 30, 60, 60]; so m^2 = [0, 4500, 7200, 7200]
+    (both rows) and, against m = 0, GMS = c / (m^2 + c).
+    """
+    step = np.zeros((4, 8, 3), np.uint8)
+    step[:, 4:] = 90
+    black = np.zeros_like(step)
+    m2 = np.array([0.0, 4500, 7200, 7200])
+    gms = 170 / (m2 + 170)
+    want = np.sqrt(np.mean((gms - gms.mean()) ** 2))
+    assert metrics.gmsd(black, step) == pytest.approx(want, rel=1e-12)
+    assert metrics.gmsd(step[..., 0], black[..., 0]) == pytest.approx(want, rel=1e-12)  # grey input
+    assert want > 0.4
+
+
+def test_gmsd_shape_mismatch():
+    with pytest.raises(ValueError):
+        metrics.gmsd(np.zeros((8, 8, 3)), np.zeros((8, 6, 3)))

@@ -45,11 +45,15 @@ def _outputs(out_dir: str | None, plotted: list[str]) -> list[tuple[str, Path]]:
     return [("--out", out / "bench.json")] + [("--out", out / f"rd-{name}.png") for name in plotted]
 
 
-def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int) -> list[dict]:
-    """The benchmark of each input (a .tpsv: its timing tables only), with a progress bar on a terminal."""
+def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges: int) -> tuple[list[dict], dict | None]:
+    """The benchmark of each input (a .tpsv: its timing tables only), then the edge
+    table once (``edges`` variants, 0: none; only when some input is a raster image),
+    with a progress bar on a terminal."""
+    if all(model for *_, model in inputs):
+        edges = 0
     stages = ["search", "initial", "grid", "jpeg", "timing", "magnify", "edits"]
     results = []
-    with progress_bar(ctx, len(inputs) * len(stages), "bench") as bar:
+    with progress_bar(ctx, len(inputs) * len(stages) + (1 if edges else 0), "bench") as bar:
         for name, path, lab_path, model in inputs:
             if model:
                 results.append(b.bench_model(name, codec.load(path), device=device))
@@ -60,7 +64,10 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int) -> lis
             labels = read_labels(lab_path, shape=rgb.shape[:2]) if lab_path else None
             results.append(b.bench_image(name, rgb, labels, device=device, iterations=iterations, grid=grid,
                                          seed=seed, step=(lambda s: bar.update(1)) if bar else None))
-    return results
+        edge = b.edge_table(edges, iterations=iterations, device=device) if edges else None
+        if bar and edges:
+            bar.update(1)
+    return results, edge
 
 
 @main.command()
@@ -72,10 +79,12 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int) -> lis
 @click.option("--grid", type=click.IntRange(0, 20), default=4, show_default=True,
               help="Brute-force grid of N x N thresholds (0: skip).")
 @click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--edges", "edge_variants", type=click.IntRange(0, 20), default=3, show_default=True,
+              help="Variants of the synthetic shapes in the edge table (0: skip it).")
 @device_option
 @json_option
 @click.pass_context
-def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
+def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, device, as_json):
     """Benchmark IMAGES (default: the bundled samples, with their label maps).
 
     An IMAGE may also be a .tpsv file: then only its timing tables are made.
@@ -83,14 +92,18 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
     Prints Table I (construction + solve + rasterisation: global CPU solve,
     localised without and with packing), Table II (PSNR, w and bpp of the initial
     guess, the searched optimum, a brute-force grid and JPEG), the 4x
-    magnification comparison against bicubic and Lanczos, and CPU seconds.
+    magnification comparison against bicubic and Lanczos (PSNR, SSIM, GMSD),
+    the edge table (synthetic shapes rendered at 8x against the analytic
+    picture, PSNR and GMSD next to bicubic and Lanczos; once per run) and CPU
+    seconds.
     """
     inputs = [(name, path, lab, is_tpsv(str(path))) for name, path, lab in _inputs(images)]
     with claim_outputs([p for _, path, lab, _ in inputs for p in (path, lab)],
                        *_outputs(out_dir, [name for name, _, _, model in inputs if not model])) as out:
         device = device_for(ctx, device)
-        results = _run(ctx, inputs, device, iterations, grid, seed)
-        report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results}
+        results, edges = _run(ctx, inputs, device, iterations, grid, seed, edge_variants)
+        report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results,
+                  "edges": edges}
         if out_dir:
             out.write(Path(out_dir) / "bench.json", json.dumps(report, indent=2, default=float).encode())
             for r in results:
@@ -99,6 +112,6 @@ def bench(ctx, images, out_dir, iterations, grid, seed, device, as_json):
     if as_json:
         click.echo(json.dumps(report, indent=2, default=float))
     else:
-        click.echo(b.tables(results, device))
+        click.echo(b.tables(results, device, edges))
         if out_dir:
             say(ctx, f"wrote {out_dir}/bench.json and rate-distortion plots")
