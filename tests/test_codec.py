@@ -392,9 +392,11 @@ def models(draw) -> Model:
     height = draw(st.integers(1, 400))
     coord = st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False)
     regions = []
-    for _ in range(draw(st.integers(0, 4))):
+    n_regions = draw(st.integers(0, 4))
+    for _ in range(n_regions):
         polys = []
-        for _ in range(draw(st.integers(1, 3))):
+        # holes hold other regions: at most one polygon per region of the model
+        for _ in range(draw(st.integers(1, min(3, n_regions)))):
             k = draw(st.integers(3, 7))
             polys.append(np.array(draw(st.lists(coord, min_size=2 * k, max_size=2 * k))).reshape(k, 2))
         m, n = draw(st.integers(2, 5)), draw(st.integers(2, 5))
@@ -974,3 +976,11 @@ def test_models_beyond_the_limits_are_the_users_error():
     with pytest.raises(ValueError) as info:
         codec.encode(m)
     assert not isinstance(info.value, TpsvError)
+
+
+def test_more_holes_than_regions_is_refused():
+    """Each hole holds another region: 5000 holes in a 5-region file is hostile (deform paid per polygon)."""
+    m = hand_model()
+    m.regions[0].outline = list(m.regions[0].outline) + [square(1.0 + 0.01 * i, 1.0, 0.5) for i in range(len(m.regions))]
+    with pytest.raises(ValueError, match="at most one per region"):
+        codec.encode(m)

@@ -425,6 +425,15 @@ def _validate_regions(q: Quantized) -> None:
         raise TpsvFormatError(
             f"outline polygon {bad[0]} has {q.vert_counts[bad[0]]} vertices (at least 3)"
         )
+    # a hole holds at least one other region and two holes never hold the same one,
+    # so a region has at most (regions - 1) holes; more is a hostile file (deform and
+    # render pay per polygon)
+    bad = np.nonzero(q.poly_counts > len(q.labels))[0]
+    if bad.size:
+        raise TpsvFormatError(
+            f"region {bad[0]}: {q.poly_counts[bad[0]]} outline polygons, but a region has at most "
+            f"one per region of the file ({len(q.labels)})"
+        )
     bad = np.nonzero(q.vert_counts > layout.MAX_POLYGON_VERTICES)[0]
     if bad.size:
         raise TpsvFormatError(

@@ -244,11 +244,13 @@ def map_outline(outline, old: Patch, new: Patch) -> list[np.ndarray]:
     total = sum(float(np.hypot(*(np.roll(p, -1, axis=0) - p).T).sum()) for p in map(np.asarray, outline))
     if not total <= MAX_MAPPED_POINTS * SUBDIVIDE_PX:
         raise TpsvError(f"outline too long to deform (more than {MAX_MAPPED_POINTS} points at {SUBDIVIDE_PX} px)")
-    out = []
-    for poly in outline:
-        q = phi(_subdivide(np.asarray(poly, np.float64), SUBDIVIDE_PX))
-        out.append(_simplify(q, SIMPLIFY_PX))
-    return out
+    subs = [_subdivide(np.asarray(poly, np.float64), SUBDIVIDE_PX) for poly in outline]
+    if not subs:
+        return []
+    # one pass through the patch maps for all polygons: per call they cost
+    # set-up (coefficients, frames), which a region with thousands of holes pays thousands of times
+    mapped = np.split(phi(np.concatenate(subs)), np.cumsum([len(q) for q in subs])[:-1])
+    return [_simplify(q, SIMPLIFY_PX) for q in mapped]
 
 
 def _glue(model: Model, out: Model, mappers: dict, eps: float) -> list[int]:
