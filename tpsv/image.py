@@ -634,10 +634,30 @@ def read_strokes(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
+#: Pixels converted to 8 bits at a time (bounds the float64 scratch copy).
+_U8_PIXELS = 1 << 18
+
+
+def to_uint8(rgb: np.ndarray) -> np.ndarray:
+    """8-bit sRGB of float sRGB in ``[0, 1]`` (rounded, clipped); uint8 input is returned as is.
+
+    The one rounding rule of every raster tpsv writes (PNG, bands of a large
+    render, stylize's strokes), applied a few rows at a time.
+    """
+    if rgb.dtype == np.uint8:
+        return rgb
+    out = np.empty(rgb.shape, np.uint8)
+    flat_in = rgb.reshape(-1, 3) if rgb.ndim == 3 else rgb.reshape(-1)
+    flat_out = out.reshape(flat_in.shape)
+    for i in range(0, flat_in.shape[0], _U8_PIXELS):
+        part = np.asarray(flat_in[i:i + _U8_PIXELS], np.float64)
+        flat_out[i:i + _U8_PIXELS] = np.clip(np.rint(part * 255.0), 0, 255).astype(np.uint8)
+    return out
+
+
 def encode_png(rgb: np.ndarray) -> bytes:
     """PNG bytes of an RGB image given as float in ``[0, 1]`` or uint8."""
-    if rgb.dtype != np.uint8:
-        rgb = np.clip(np.rint(np.asarray(rgb, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    rgb = to_uint8(rgb)
     if rgb.ndim == 3:
         rgb = np.ascontiguousarray(rgb[:, :, ::-1])
     ok, buf = cv2.imencode(".png", rgb)

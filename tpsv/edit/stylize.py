@@ -54,6 +54,7 @@ from scipy.spatial import cKDTree
 from ..color import lab_to_srgb
 from .common import concat_features, copy_model, feature_xy, sort_by_region
 from ..errors import TpsvError
+from ..image import to_uint8
 from ..model import CURVILINEAR, GRADATION, Features, Model
 from ..render.raster import render
 
@@ -284,15 +285,9 @@ def _check_width(width) -> None:
         raise TpsvError(f"stroke width {width} must be a positive number")
 
 
-def _to_uint8(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image
-    return np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
-
-
 def _draw_chains(image, model: Model, chains, xy, scale, width) -> np.ndarray:
     """Draw ``chains`` (feature-index arrays) over ``image``; ``xy`` (F, 2) feature positions at scale 1."""
-    img = np.ascontiguousarray(_to_uint8(image)).copy()
+    img = np.ascontiguousarray(to_uint8(image)).copy()
     if not chains:
         return img
     xy = xy * float(scale)
@@ -359,7 +354,7 @@ def stylize_model(model: Model, level: int = 2, with_strokes: bool = True, strok
     m = abstract(model, level)
     img = render(m, scale=scale, device=device)
     if not with_strokes:
-        return Stylized(_to_uint8(img), m, 0)
+        return Stylized(to_uint8(img), m, 0)
     _check_width(stroke_width)
     graph = link_graph(m, link)
     chains = stroke_chains(m, link=link, min_length=min_length, graph=graph)

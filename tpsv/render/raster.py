@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import tps
 from ..errors import TpsvError
+from ..image import to_uint8
 from ..gpu import resolve_device, warp
 from .pixelmap import BandMaps, no_tick, pixel_map
 
@@ -60,8 +61,6 @@ MAX_ARRAY_PIXELS = 1 << 25
 #: Least pixels of coverage read at a time while preparing a banded render
 #: (``outline.GapFill``, about 16 bytes a pixel; otherwise a band's rows).
 _PREP_PIXELS = 1 << 18
-#: Pixels converted to 8 bits at a time (float64 on the way, as ``tpsv.image.encode_png``).
-_U8_PIXELS = 1 << 18
 
 
 def output_size(model, width=None, height=None, scale=None) -> tuple[int, int]:
@@ -192,17 +191,6 @@ def render_png(model, width=None, height=None, scale=None, device: str = "cpu", 
         yield encode_png(render(model, W, H, None, device, kernels, threads, clamp))
         return
     yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels))
-
-
-def to_uint8(rgb: np.ndarray) -> np.ndarray:
-    """8-bit sRGB of float sRGB in ``[0, 1]``, rounded as ``tpsv.image.encode_png`` rounds (a few rows at a time)."""
-    out = np.empty(rgb.shape, np.uint8)
-    flat_in = rgb.reshape(-1, 3) if rgb.ndim == 3 else rgb.reshape(-1)
-    flat_out = out.reshape(flat_in.shape)
-    for i in range(0, flat_in.shape[0], _U8_PIXELS):
-        part = np.asarray(flat_in[i:i + _U8_PIXELS], np.float64)
-        flat_out[i:i + _U8_PIXELS] = np.clip(np.rint(part * 255.0), 0, 255).astype(np.uint8)
-    return out
 
 
 def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int):
