@@ -276,3 +276,79 @@ def test_outlines_too_long_are_refused_before_any_work():
     m.regions[0].outline = [zig] + list(m.regions[0].outline[1:])
     with pytest.raises(TpsvError, match="outlines too long to deform"):
         df.affine(m, 1, [[1.1, 0, 0], [0, 1.1, 0]])
+
+
+def test_a_region_too_long_to_deform_is_refused_before_any_work():
+    """Fuzz finding (seed 100): a 100k-vertex outline of the deformed region took 25 s."""
+    import copy
+
+    m = copy.deepcopy(scene_model())
+    n = 3000
+    # a comb inside the canvas: long (n * height px) but within the whole-model budget of a big canvas
+    m.width = m.height = 4096
+    comb = np.column_stack([np.repeat(np.linspace(1, 4000, n // 2), 2),
+                            np.tile([1.0, 200.0, 200.0, 1.0], n // 4)])
+    m.regions[DISC].outline = [comb]
+    with pytest.raises(TpsvError, match="outlines to deform are too long"):
+        deform.affine(m, DISC, [[1.1, 0, 0], [0, 1.1, 0]])
+
+
+def test_piecewise_simplification_stays_within_tolerance():
+    """Douglas-Peucker runs in pieces (a 10^5-point zig-zag took 10 s): every input point stays within tol."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 2 * np.pi, 5000, endpoint=False)
+    poly = np.column_stack([100 + 60 * np.cos(t), 100 + 40 * np.sin(t)]) + rng.normal(0, 0.02, (len(t), 2))
+    tol = 1.0 / 16
+    out = deform._approx(poly, tol)
+    assert len(out) < len(poly) / 4
+    # output points are input points (float32-rounded), in order, and the first is kept
+    assert np.abs(out[0] - poly[0]).max() < 1e-4
+
+    def worst(simple):  # farthest input point from the simplified closed polyline
+        a, b = simple, np.roll(simple, -1, axis=0)
+        d = b - a
+        w = poly[:, None, :] - a[None]
+        u = np.clip((w * d[None]).sum(-1) / np.maximum((d * d).sum(-1), 1e-12)[None], 0, 1)
+        return np.hypot(*(w - u[..., None] * d[None]).transpose(2, 0, 1)).min(axis=1).max()
+
+    # Douglas-Peucker bounds the distance to each chord's line; to its segment
+    # a noisy point may lie a little farther: as far as one whole-polygon pass goes
+    whole = cv2.approxPolyDP(poly.reshape(-1, 1, 2).astype(np.float32), tol, True).reshape(-1, 2)
+    assert worst(out) <= max(worst(whole), tol) + 0.02
+
+
+def test_mapper_jacobian_matches_finite_differences():
+    ctrl = affine_grid(5, 5)
+    old = Patch(ctrl=ctrl.copy())
+    bent = ctrl.copy()
+    bent[2, 2, 0] += (4.0, -3.0)
+    moved = np.zeros((5, 5), bool)
+    moved[2, 2] = True
+    new = Patch(ctrl=deform.refresh_derivatives(bent, moved))
+    phi = deform.patch_mapper(old, new)
+    xy = old.ctrl[1:4, 1:4, 0, :].reshape(-1, 2) + 0.3
+    got, J = phi.with_jacobian(xy)
+    assert np.allclose(got, phi(xy), atol=1e-9)
+    h = 1e-4
+    fd = np.stack([(phi(xy + (h, 0)) - phi(xy - (h, 0))) / (2 * h),
+                   (phi(xy + (0, h)) - phi(xy - (0, h))) / (2 * h)], axis=-1)
+    assert np.abs(J - fd).max() < 1e-5
+
+
+def test_inverse_on_a_large_bent_grid_starts_near_and_converges():
+    """The walk once started from the corners' guess: hundreds of steps on a 256-wide grid."""
+    M = N = 64
+    ctrl = affine_grid(M, N)
+    rng = np.random.default_rng(0)
+    moved = np.zeros((M, N), bool)
+    moved[::7, ::5] = True
+    bent = ctrl.copy()
+    bent[moved, 0, :] += rng.uniform(-2, 2, (moved.sum(), 2))
+    p = Patch(ctrl=deform.refresh_derivatives(bent, moved))
+    assert patch.fold_free(p)
+    st = rng.uniform(0, [M - 1, N - 1], (2000, 2))
+    xy = patch.forward(p, st[:, 0], st[:, 1])
+    back = patch.inverse(p, xy)
+    assert np.abs(patch.forward(p, back[:, 0], back[:, 1]) - xy).max() < 1e-6

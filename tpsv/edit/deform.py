@@ -172,17 +172,37 @@ def _subdivide(poly: np.ndarray, step: float) -> np.ndarray:
     k = np.maximum(1, np.ceil(seg / step).astype(np.int64))
     if not np.all(np.isfinite(seg)) or int(k.sum()) > MAX_MAPPED_POINTS:
         raise TpsvError(f"outline too long to deform (more than {MAX_MAPPED_POINTS} points at {step} px)")
-    t = np.concatenate([np.arange(n) / n for n in k])
+    # vectorised: a Python loop over edges costs seconds on a hostile 100k-vertex outline
     i = np.repeat(np.arange(len(poly)), k)
+    first = np.cumsum(k) - k
+    t = (np.arange(int(k.sum())) - first[i]) / k[i]
     return poly[i] + t[:, None] * (nxt[i] - poly[i])
 
 
-def _simplify(poly: np.ndarray, tol: float) -> np.ndarray:
+#: Douglas-Peucker runs on pieces of at most this many points: it is quadratic
+#: in the worst case, and a hostile zig-zag outline of 10^5 points took 10 s.
+SIMPLIFY_PIECE = 1024
+
+
+def _approx(poly: np.ndarray, tol: float) -> np.ndarray:
+    """``cv2.approxPolyDP`` of a closed polygon, piece by piece (each piece keeps its first point)."""
     import cv2
 
+    def dp(q, closed):
+        return cv2.approxPolyDP(q.reshape(-1, 1, 2).astype(np.float32), tol, closed).reshape(-1, 2)
+
+    if len(poly) <= SIMPLIFY_PIECE:
+        return dp(poly, True).astype(np.float64)
+    ends = list(range(0, len(poly), SIMPLIFY_PIECE)) + [len(poly)]
+    closed = np.concatenate([poly, poly[:1]])
+    # each open piece runs to the next piece's first point, which is dropped here and kept there
+    return np.concatenate([dp(closed[a:b + 1], False)[:-1] for a, b in zip(ends[:-1], ends[1:])]).astype(np.float64)
+
+
+def _simplify(poly: np.ndarray, tol: float) -> np.ndarray:
     from ..geometry.outline import signed_area
 
-    s = cv2.approxPolyDP(poly.reshape(-1, 1, 2).astype(np.float32), tol, True).reshape(-1, 2).astype(np.float64)
+    s = _approx(poly, tol)
     a0 = signed_area(poly)
     if len(s) < 3 or np.sign(signed_area(s)) != np.sign(a0) or abs(signed_area(s)) < 0.5 * abs(a0):
         return poly
@@ -211,21 +231,57 @@ def patch_mapper(old: Patch, new: Patch):
             parts.append(hpatch.forward(new, st[:, 0], st[:, 1]))
         return np.concatenate(parts)
 
+    def with_jacobian(xy):
+        """``(phi(xy), J)`` with ``J = J_new diag(scale) J_old^-1`` (n, 2, 2): one inverse per point."""
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        out, jac = [], []
+        for c in range(0, xy.shape[0], MAP_CHUNK):
+            st = hpatch.inverse(old, xy[c:c + MAP_CHUNK])
+            sn = st * scale
+            out.append(hpatch.forward(new, sn[:, 0], sn[:, 1]))
+            Jo = hpatch.jacobian(old, st[:, 0], st[:, 1])
+            Jn = hpatch.jacobian(new, sn[:, 0], sn[:, 1]) * scale[None, None, :]
+            det = Jo[:, 0, 0] * Jo[:, 1, 1] - Jo[:, 0, 1] * Jo[:, 1, 0]
+            det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+            inv = np.stack([np.stack([Jo[:, 1, 1], -Jo[:, 0, 1]], -1),
+                            np.stack([-Jo[:, 1, 0], Jo[:, 0, 0]], -1)], 1) / det[:, None, None]
+            jac.append(Jn @ inv)
+        if not out:
+            return xy.copy(), np.zeros((0, 2, 2))
+        return np.concatenate(out), np.concatenate(jac)
+
+    phi.with_jacobian = with_jacobian
     return phi
 
 
-def _check_outline_budget(model: Model) -> None:
+#: Most outline length (px) of the regions one deformation moves: their
+#: outlines are subdivided at 0.25 px, mapped and searched (about 10 us a
+#: pixel of outline on one core), so this keeps an edit within a few seconds.
+#: A region of a 4096 x 4096 photo with a thousand holes stays well below it.
+MAX_DEFORMED_PX = 1 << 18
+
+
+def _outline_length(outline) -> float:
+    total = 0.0
+    for p in outline:
+        p = np.asarray(p, np.float64)
+        total += float(np.hypot(*(np.roll(p, -1, axis=0) - p).T).sum())
+    return total
+
+
+def _check_outline_budget(model: Model, regions=()) -> None:
     """Refuse, before any work, a model whose outlines are too long to deform.
 
     The glue step subdivides deformed outlines at 0.25 px and every mapped
     outline at :data:`SUBDIVIDE_PX`; a hostile file with a few kilobytes of
-    long zig-zag edges would otherwise cost minutes and gigabytes.
+    long zig-zag edges would otherwise cost minutes and gigabytes. The
+    ``regions`` to deform (and their islands, which move with them) have
+    the tighter :data:`MAX_DEFORMED_PX`.
     """
-    total = 0.0
-    for reg in model.regions:
-        for p in reg.outline:
-            p = np.asarray(p, np.float64)
-            total += float(np.hypot(*(np.roll(p, -1, axis=0) - p).T).sum())
+    moved = sum(_outline_length(model.regions[r].outline) for r in set(regions))
+    if not moved <= MAX_DEFORMED_PX:
+        raise TpsvError(f"the outlines to deform are too long ({moved:.0f} px; at most {MAX_DEFORMED_PX} px)")
+    total = sum(_outline_length(reg.outline) for reg in model.regions)
     # traced outlines follow pixel edges (at most 2 per pixel, RDP only shortens them);
     # twice that leaves room for earlier deformations that stretched them
     cap = min(MAX_MAPPED_POINTS // 4, 4 * model.width * model.height + 16 * (model.width + model.height))
@@ -421,7 +477,7 @@ def move_points(model: Model, moves, derivatives: str = "catmull-rom", keep_orde
         if r in order:
             order.remove(r)
         order.append(r)
-    _check_outline_budget(model)
+    _check_outline_budget(model, order)
     out = copy_model(model)
     mappers = {}
     for r in order:
@@ -491,7 +547,7 @@ def affine(model: Model, region, matrix, about: str = "centroid", keep_order: bo
         c = c + g - A @ g
     elif about != "origin":
         raise TpsvError(f"about {about!r} is not centroid or origin")
-    _check_outline_budget(model)
+    _check_outline_budget(model, [r])
     out = copy_model(model)
     moved = [r] + (enclosed_regions(model, [r]) if attach else [])
     phi = lambda xy: np.asarray(xy, np.float64) @ A.T + c  # noqa: E731
@@ -524,11 +580,15 @@ def _push_region(model: Model, out: Model, q: int, phi, owner: int) -> None:
     ctrl = np.asarray(model.regions[q].patch.ctrl, np.float64)
     M, N = ctrl.shape[:2]
     P = ctrl[..., 0, :].reshape(-1, 2)
-    h = 0.25
-    ex, ey = np.array([h, 0.0]), np.array([0.0, h])
-    J = np.stack([(phi(P + ex) - phi(P - ex)) / (2 * h), (phi(P + ey) - phi(P - ey)) / (2 * h)], axis=-1)  # (n, 2, 2)
+    if hasattr(phi, "with_jacobian"):
+        moved, J = phi.with_jacobian(P)
+    else:
+        h = 0.25
+        ex, ey = np.array([h, 0.0]), np.array([0.0, h])
+        J = np.stack([(phi(P + ex) - phi(P - ex)) / (2 * h), (phi(P + ey) - phi(P - ey)) / (2 * h)], axis=-1)
+        moved = phi(P)
     new = np.empty_like(ctrl)
-    new[..., 0, :] = phi(P).reshape(M, N, 2)
+    new[..., 0, :] = moved.reshape(M, N, 2)
     for k in (1, 2, 3):
         new[..., k, :] = np.einsum("nij,nj->ni", J, ctrl[..., k, :].reshape(-1, 2)).reshape(M, N, 2)
     try:
@@ -662,7 +722,7 @@ def set_grid(model: Model, region, grid, keep_order: bool = False, attach: bool 
         ctrl = grid_from_json(grid)
     old = model.regions[r].patch
     new = _check_patch(r, ctrl)
-    _check_outline_budget(model)
+    _check_outline_budget(model, [r])
     out = copy_model(model)
     _replace_patch(out, r, new, map_outline(model.regions[r].outline, old, new))
     mappers = {r: patch_mapper(old, new)}

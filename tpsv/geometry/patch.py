@@ -165,12 +165,25 @@ def _locate_cell(patch: Patch, xy: np.ndarray):
     ctrl = patch.ctrl
     M, N = patch.shape
     P = ctrl[..., 0, :]
-    # global guess from the four corner control points
-    a, b = _bilinear_inverse(P[0, 0], P[M - 1, 0], P[0, N - 1], P[M - 1, N - 1], xy)
-    i = np.clip(np.floor(a * (M - 1)), 0, M - 2).astype(np.int64)
-    j = np.clip(np.floor(b * (N - 1)), 0, N - 2).astype(np.int64)
+    if (M - 1) * (N - 1) <= 16:
+        # global guess from the four corner control points
+        a, b = _bilinear_inverse(P[0, 0], P[M - 1, 0], P[0, N - 1], P[M - 1, N - 1], xy)
+        i = np.clip(np.floor(a * (M - 1)), 0, M - 2).astype(np.int64)
+        j = np.clip(np.floor(b * (N - 1)), 0, N - 2).astype(np.int64)
+    else:
+        # start at the nearest cell centre: on a large, bent grid the corner
+        # guess can be hundreds of cells off, and each walk step costs a pass
+        from scipy.spatial import cKDTree
+
+        centre = 0.25 * (P[:-1, :-1] + P[1:, :-1] + P[:-1, 1:] + P[1:, 1:])
+        _, k = cKDTree(centre.reshape(-1, 2)).query(xy)
+        i, j = np.divmod(np.asarray(k, np.int64), N - 1)
+    # from a near start a walk needs a few steps; one that oscillates between
+    # two cells (a point in the sliver between non-convex quads) is cut short,
+    # and Newton on the surface finishes it
+    steps = M + N if (M - 1) * (N - 1) <= 16 else 16
     act = np.arange(len(xy))
-    for _ in range(M + N):
+    for _ in range(steps):
         ia, ja, p = i[act], j[act], xy[act]
         a, b = _bilinear_inverse(P[ia, ja], P[ia + 1, ja], P[ia, ja + 1], P[ia + 1, ja + 1], p)
         di = np.where((a < 0) & (ia > 0), -1, np.where((a > 1) & (ia < M - 2), 1, 0))
