@@ -28,7 +28,8 @@ def model():
 
 @pytest.fixture(scope="module")
 def base_render(model):
-    return render(model)
+    # one region per pixel: these tests follow where regions go, not how borders blend
+    return render(model, antialias=False)
 
 
 def index_of(m):
@@ -42,7 +43,7 @@ def test_translation_moves_the_object(model, base_render):
     for p, q in zip(model.regions[DISC].outline, new.regions[DISC].outline):
         assert np.array_equal(q, p + SHIFT)
     assert np.array_equal(new.regions[DISC].patch.ctrl[..., 0, :], model.regions[DISC].patch.ctrl[..., 0, :] + SHIFT)
-    img = render(new)
+    img = render(new, antialias=False)
     i0, i1 = index_of(model), index_of(new)
     dx, dy = int(SHIFT[0]), int(SHIFT[1])
     moved = np.zeros_like(i0, bool)
@@ -56,6 +57,14 @@ def test_translation_moves_the_object(model, base_render):
     assert np.array_equal(img[far], base_render[far])
 
 
+def centroid(p):
+    """Area centroid of a polygon (vertex means depend on how a curve is sampled)."""
+    p = np.asarray(p, np.float64)
+    q = np.roll(p, -1, axis=0)
+    cr = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
+    return np.array([((p[:, 0] + q[:, 0]) * cr).sum(), ((p[:, 1] + q[:, 1]) * cr).sum()]) / (3.0 * cr.sum())
+
+
 def test_uncovered_pixels_attached_neighbours_fill_the_gap(model):
     new = deform.affine(model, DISC, [1, 0, SHIFT[0], 0, 1, SHIFT[1]])
     i0, i1 = index_of(model), index_of(new)
@@ -65,7 +74,7 @@ def test_uncovered_pixels_attached_neighbours_fill_the_gap(model):
     assert np.all(i1[vacated] == BACKGROUND)
     hole0 = model.regions[BACKGROUND].outline[1]
     hole1 = new.regions[BACKGROUND].outline[1]
-    assert np.allclose(hole1.mean(0), hole0.mean(0) + SHIFT, atol=0.2)
+    assert np.allclose(centroid(hole1), centroid(hole0) + SHIFT, atol=0.2)
     assert new.params.extra[FRONT_KEY] == str(DISC)
 
 
@@ -204,10 +213,26 @@ def test_reflection_keeps_a_positive_jacobian(model, base_render):
     assert patch.fold_free(p)
     sel = model.features.region == DISC
     assert np.allclose(new.features.st[sel, 0], 1.0 - model.features.st[sel, 0])
-    img = render(new)
+    img = render(new, antialias=False)
     i0 = index_of(model)
     ys, xs = np.nonzero(i0 == DISC)
     assert np.abs(img[ys, 43 - xs] - base_render[ys, xs]).mean() < 0.03
+
+
+def outline_area(p):
+    from tpsv.geometry.outline import signed_area
+
+    return signed_area(np.asarray(p, np.float64))
+
+
+def max_gap(a, b):
+    """Farthest vertex of polygon ``a`` from the closed polyline ``b``."""
+    a = np.asarray(a, np.float64)
+    p, q = np.asarray(b, np.float64), np.roll(np.asarray(b, np.float64), -1, axis=0)
+    d = q - p
+    w = a[:, None, :] - p[None]
+    u = np.clip((w * d[None]).sum(-1) / np.maximum((d * d).sum(-1), 1e-12)[None], 0, 1)
+    return float(np.hypot(*(w - u[..., None] * d[None]).transpose(2, 0, 1)).min(axis=1).max())
 
 
 def test_grid_json_round_trip(model, tmp_path):
@@ -218,15 +243,17 @@ def test_grid_json_round_trip(model, tmp_path):
         new = deform.set_grid(model, BACKGROUND, grid, keep_order=True)
         assert np.array_equal(new.regions[BACKGROUND].patch.ctrl, model.regions[BACKGROUND].patch.ctrl)
         for a, b in zip(new.regions[BACKGROUND].outline, model.regions[BACKGROUND].outline):
-            assert np.abs(a - b).max() < 1e-6
+            # the identity map gives the same curve (re-simplified at deform.SIMPLIFY_PX)
+            assert abs(outline_area(a) - outline_area(b)) < 0.01 * abs(outline_area(b))
+            assert max_gap(a, b) <= deform.SIMPLIFY_PX + 1e-6 and max_gap(b, a) <= deform.SIMPLIFY_PX + 1e-6
     # positions only: derivatives by Catmull-Rom, twist by Adini; a finer grid is fine
     ctrl = model.regions[PANEL].patch.ctrl
     pos = patch.forward(model.regions[PANEL].patch, *np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 3), indexing="ij"))
     new = deform.set_grid(model, PANEL, {"positions": pos.tolist()})
     assert new.regions[PANEL].patch.shape == (4, 3) and ctrl.shape[:2] == (2, 2)
     assert np.allclose(new.features.st, model.features.st)
-    a = render(new)
-    b = render(model)
+    a = render(new, antialias=False)
+    b = render(model, antialias=False)
     i0 = index_of(model)
     assert np.abs(a - b)[i0 == PANEL].max() < 2e-3  # the same surface, resampled
 

@@ -48,7 +48,7 @@ def test_plain_scheme_reproduces_the_paper_pipeline(scene):
     assert scheme_of(m.params) == "paper"
     # the plain scheme as first implemented: extractor.extract, features mapped into
     # the patches, sampled colours, no fit
-    g = build_geometry(labels)
+    g = build_geometry(labels, rgb)
     c0, s0 = selection.initial_thresholds(rgb, g.index)
     fs = FeatureExtractor(rgb, g.index).extract(c0, s0)
     st = to_patch_space([r.patch for r in g.regions], fs.xy, fs.region)
@@ -70,7 +70,7 @@ def test_default_scheme_is_fitted_sorted_and_compact(scene):
     assert np.all(np.diff(f.region) >= 0)
     assert np.array_equal(scan_order(f.region, f.st, f.pair), np.arange(len(f)))
     # the same features with their cells' mean colours (no fit) render worse
-    g = build_geometry(labels)
+    g = build_geometry(labels, rgb)
     unfitted = codec.quantize(make_model(rgb, g, FeatureExtractor(rgb, g.index), m.params, fit=False))
     assert np.array_equal(unfitted.features.st, f.st)
     assert res.psnr > metrics.psnr(rgb, render(unfitted))
@@ -150,7 +150,7 @@ def test_start_thresholds_stage_keeps_given_thresholds(scene):
 
 def test_stages_give_vectorize_without_search(scene):
     rgb, labels = scene
-    g = build_geometry(label_map(rgb, labels))
+    g = build_geometry(label_map(rgb, labels), rgb)
     cands = Candidates(rgb, g, scheme_params())
     out = cands.evaluate(*start_thresholds(rgb, g))
     res = vectorize(rgb, labels, search=False)
@@ -165,7 +165,7 @@ def test_stages_give_vectorize_without_search(scene):
 
 def test_stages_give_vectorize_with_search(scene):
     rgb, labels = scene
-    g = build_geometry(labels)
+    g = build_geometry(labels, rgb)
     cands = Candidates(rgb, g, scheme_params())
     start = start_thresholds(rgb, g)
     calls = []

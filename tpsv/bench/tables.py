@@ -302,7 +302,7 @@ def bench_image(
     optimum = _point(rgb, len(res.data), res.mse, t_canny=res.model.params.t_canny, t_super=res.model.params.t_super)
 
     # The same geometry and precomputed extractor serve the initial guess and the grid.
-    geometry = build_geometry(labels if labels is not None else _auto_labels(rgb, seed))
+    geometry = build_geometry(labels if labels is not None else _auto_labels(rgb, seed), rgb)
     extractor = FeatureExtractor(rgb, geometry.index)
     c0, s0 = selection.initial_thresholds(rgb, geometry.index)
     base = res.model.params

@@ -89,6 +89,7 @@ from ..geometry import segment
 from ..geometry.regions import build_regions
 from ..model import Features, Model, Params, Region
 from ..render.pixelmap import PixelMap
+from ..render.borders import Borders
 from ..render.raster import render, shade
 from . import search as selection
 from .features import DEDUP_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
@@ -251,19 +252,22 @@ def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0) -> np.n
     return labels
 
 
-def build_geometry(labels: np.ndarray) -> Geometry:
+def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometry:
     """Stage 2: regions with outlines and patches from a label map (:func:`tpsv.geometry.regions.build_regions`).
 
     Parameters
     ----------
     labels : ndarray (H, W) int
         Label map.
+    rgb : ndarray (H, W, 3) float32, optional
+        The image: outlines fitted to its edges at sub-pixel precision
+        (without it: along the label map's pixel edges).
 
     Returns
     -------
     Geometry
     """
-    regions, index = build_regions(labels)
+    regions, index = build_regions(labels, rgb)
     return Geometry(regions=regions, index=index)
 
 
@@ -407,7 +411,8 @@ def evaluate(
     if maps is None:
         out = render(decoded, device=device, kernels=kernels)
     else:
-        out = shade(decoded, maps[0], maps[1], device=device, kernels=kernels)
+        mix = Borders(decoded, decoded.width, decoded.height).mix(maps[0])
+        out = shade(decoded, maps[0], maps[1], device=device, kernels=kernels, borders=mix)
     return data, decoded, metrics.mse(rgb, out)
 
 
@@ -687,7 +692,7 @@ def vectorize(
     VectorizeResult
     """
     t0 = time.perf_counter()
-    geometry = build_geometry(label_map(rgb, labels, seed))
+    geometry = build_geometry(label_map(rgb, labels, seed), rgb)
     candidates = Candidates(rgb, geometry, params or scheme_params(), device=device, fit=fit)
     start = start_thresholds(rgb, geometry, t_canny, t_super)
     fixed = (t_canny is not None, t_super is not None)

@@ -15,10 +15,10 @@ from scipy import ndimage
 
 from ..errors import TpsvError
 from ..model import Patch, Region
-from . import outline, patch, segment
+from . import outline, patch, segment, subpixel
 
 
-def build_regions(labels: np.ndarray) -> tuple[list[Region], np.ndarray]:
+def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[list[Region], np.ndarray]:
     """Regions with outlines and patches from a label map.
 
     Disconnected labels become several regions (each keeps its label value);
@@ -28,6 +28,10 @@ def build_regions(labels: np.ndarray) -> tuple[list[Region], np.ndarray]:
     ----------
     labels : ndarray (H, W) int
         Label map.
+    rgb : ndarray (H, W, 3) float, optional
+        The image: outlines are then fitted to its edges at sub-pixel
+        precision (:mod:`tpsv.geometry.subpixel`); without it they follow
+        the label map's pixel edges (:func:`tpsv.geometry.outline.trace_outline`).
 
     Returns
     -------
@@ -46,13 +50,16 @@ def build_regions(labels: np.ndarray) -> tuple[list[Region], np.ndarray]:
     n = int(comp.max()) + 1
     regions: list[Region] = []
     slices = ndimage.find_objects(comp + 1, max_label=n)
+    reading = subpixel.BorderReading(comp, rgb) if rgb is not None else None
     for i in range(n):
         sl = slices[i]
         if sl is None:
             continue
         mask = comp == i
         label = int(np.bincount(labels[sl][mask[sl]].ravel()).argmax())
-        polys = outline.trace_outline(mask)
+        polys = subpixel.fitted_outline(reading, comp, i, mask) if reading is not None else None
+        if polys is None:
+            polys = outline.trace_outline(mask)
         regions.append(Region(label=label, outline=polys, patch=patch.build_patch(mask, polys)))
     if not regions:
         raise TpsvError("label map has no regions")

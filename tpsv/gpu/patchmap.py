@@ -393,7 +393,8 @@ def inverse_map_numpy(patches, index, src_size, device: str = "cpu", **kw) -> np
     return inverse_map(patches, index, src_size, device=device, **kw).numpy().reshape(np.shape(index) + (2,))
 
 
-def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.001, n_itr: int = 8, newton: int = 12) -> np.ndarray:
+def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.001, n_itr: int = 8, newton: int = 12,
+                   patch_set: PatchSet | None = None) -> np.ndarray:
     """Normalised ``(S, T)`` of arbitrary points.
 
     Parameters
@@ -403,14 +404,15 @@ def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.00
         Region of each point (negative: ``(-1, -1)``).
     xy : array_like (n, 2)
         Points in model pixels.
-    device, t_loc, n_itr, newton
+    device, t_loc, n_itr, newton, patch_set
         As :func:`inverse_map`.
 
     Returns
     -------
     ndarray (n, 2) float32
     """
-    ps = PatchSet.build(patches, device)
+    ps = patch_set if patch_set is not None else PatchSet.build(patches, device)
+    device = ps.device
     xy = np.ascontiguousarray(xy, np.float32).reshape(-1, 2)
     region = np.ascontiguousarray(region, np.int32).reshape(-1)
     n = xy.shape[0]

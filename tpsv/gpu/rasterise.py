@@ -206,6 +206,28 @@ def _eval_points(
 
 
 @wp.kernel
+def _mix_border(
+    kb: BlendArrays,
+    pixels: wp.array(dtype=wp.int32),
+    other: wp.array(dtype=wp.int32),
+    st: wp.array(dtype=wp.vec2f),
+    alpha: wp.array(dtype=wp.float32),
+    width: int,
+    clamp: int,
+    out: wp.array2d(dtype=wp.vec3f),
+):
+    """Anti-aliased border pixels: ``alpha`` of the pixel's own colour, the rest the region across's."""
+    i = wp.tid()
+    p = pixels[i]
+    y = p / width
+    x = p - y * width
+    q = st[i]
+    across = lab_to_srgb(_blend(kb, other[i], q[0], q[1], clamp))
+    a = alpha[i]
+    out[y, x] = a * out[y, x] + (1.0 - a) * across
+
+
+@wp.kernel
 def _weights(
     kb: BlendArrays,
     region: wp.array(dtype=wp.int32),
@@ -368,6 +390,50 @@ def rasterise_pixels(
         wp.launch(_rasterise_list, dim=b - a, inputs=[dk.blend, reg, stm, pix_d[a:b], int(W), bg, int(clamp), int(mode), out], device=dev)
 
     _launch_banded(_rasterise_list, n, n >= _BAND_MIN, dev, threads, launch)
+    return out
+
+
+def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threads: int | None = None,
+               clamp: bool = True) -> wp.array:
+    """Mix the region across a border into border pixels of a rasterised frame, in place (sRGB).
+
+    Parameters
+    ----------
+    dk : DeviceKernels
+        Solved.
+    out : wp.array2d(vec3f) (H, W)
+        The frame from :func:`rasterise` (``MODE_SRGB``).
+    pixels : array_like (n,) int
+        Flat indices ``y * W + x`` of the border pixels.
+    other : array_like (n,) int
+        Region on the other side of the border.
+    st : array_like (n, 2)
+        Normalised ``(S, T)`` of each pixel in ``other``'s patch.
+    alpha : array_like (n,)
+        Coverage of the pixel's own region.
+    threads, clamp
+        As :func:`rasterise`.
+
+    Returns
+    -------
+    wp.array2d(dtype=vec3f)
+        ``out``.
+    """
+    n = int(np.size(pixels))
+    if n == 0:
+        return out
+    dev = dk.device
+    W = out.shape[1]
+    pix_d = wp.array(np.ascontiguousarray(pixels, np.int32).reshape(-1), dtype=wp.int32, device=dev)
+    oth_d = wp.array(np.ascontiguousarray(other, np.int32).reshape(-1), dtype=wp.int32, device=dev)
+    st_d = wp.array(np.ascontiguousarray(st, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=dev)
+    al_d = wp.array(np.ascontiguousarray(alpha, np.float32).reshape(-1), dtype=wp.float32, device=dev)
+
+    def launch(a, b):
+        wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, pix_d[a:b], oth_d[a:b], st_d[a:b], al_d[a:b], int(W),
+                                                  int(clamp), out], device=dev)
+
+    _launch_banded(_mix_border, n, n >= _BAND_MIN, dev, threads, launch)
     return out
 
 

@@ -21,6 +21,7 @@ from .rasterise import (
     MODE_SRGB,
     device_weights,
     eval_points,
+    mix_border,
     rasterise,
     rasterise_pixels,
     render_arrays,
@@ -31,6 +32,6 @@ from .solve import FULL_SOLVE_FRACTION, coefficients, solve, solve_reusing, subs
 __all__ = [
     "DeviceKernels", "upload",
     "solve", "solve_reusing", "subset_kernels", "coefficients", "FULL_SOLVE_FRACTION",
-    "rasterise", "rasterise_pixels", "eval_points", "device_weights", "render_arrays", "render_timed",
+    "rasterise", "rasterise_pixels", "mix_border", "eval_points", "device_weights", "render_arrays", "render_timed",
     "MODE_SRGB", "MODE_LAB",
 ]

@@ -24,6 +24,9 @@ kernels, the rendered image) and brings them up to date for a new model:
    a re-solved kernel's cell (a kernel's support reaches at most half a cell
    into its neighbours), plus the geometry changes of step 1
    (:func:`tpsv.gpu.tps.rasterise_pixels`).
+5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.render.borders`)
+   are mixed into a copy of that frame after every update; where they are and
+   their ``(S, T)`` across are found again only when the geometry changed.
 
 The result is bit-identical to :func:`tpsv.render.raster.render` of the new model
 (tests check it); :class:`UpdateStats` says how much was rebuilt.
@@ -41,6 +44,8 @@ from ..errors import TpsvError
 from ..gpu import resolve_device
 # Warp is imported with gpu.tps; this module exists only to render, so it pays for it on import
 from ..gpu import tps as gtps
+from ..gpu import warp
+from .borders import Borders
 from .pixelmap import draw_order, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, output_size
 
@@ -190,6 +195,8 @@ class LiveImage:
         self._dk = None
         self._out = None
         self._pm = None  # PixelMap of the current geometry
+        self._mix = None  # its anti-aliased border pixels and their (S, T) across
+        self._shown = None  # _out with the borders mixed in
         self._duplicates = None  # duplicate groups of the current features' positions
         self.stats = self._rebuild(model, full=True)
 
@@ -203,7 +210,7 @@ class LiveImage:
     @property
     def image(self) -> np.ndarray:
         """The current render: float32 sRGB ``(H, W, 3)`` in ``[0, 1]`` (a copy)."""
-        return self._out.numpy().reshape(self.H, self.W, 3)
+        return self._shown.numpy().reshape(self.H, self.W, 3)
 
     def update(self, model) -> UpdateStats:
         """Bring everything up to date for ``model`` (see the module docstring); returns the figures."""
@@ -233,6 +240,8 @@ class LiveImage:
         watch("solve")
         pixels = self._rasterise(dk, ks, reuse, dirty)
         watch("rasterise")
+        self._mix_borders(model, dk)
+        watch("borders")
         times = dict(watch.times, total=time.perf_counter() - t_start)
         self.model, self.kernels, self._dk = model, ks, dk
         return UpdateStats(kernels=ks.n_kernels, solved=solved, pixels=pixels, regrouped=regrouped,
@@ -257,6 +266,7 @@ class LiveImage:
                 dirty |= (pm.st != self._pm.st).any(axis=2).ravel()
             self.W, self.H = W, H
             self._pm = pm
+            self._mix = None
         return recomputed, dirty
 
     def _update_grouping(self, model, full: bool):
@@ -300,6 +310,24 @@ class LiveImage:
         else:
             gtps.rasterise_pixels(dk, pm.index_d, pm.st_d, pix, self._out, threads=self.threads, clamp=self.clamp)
         return int(pix.size)
+
+    def _mix_borders(self, model, dk) -> None:
+        """Step 5: the shown image, the frame with the anti-aliased borders mixed in (as ``render`` does).
+
+        The frame of one region per pixel stays as it is, so an update
+        redraws only its dirty pixels; the border pixels (a thin set) are
+        mixed again after every update, their ``(S, T)`` across kept while
+        the geometry stays.
+        """
+        from ..gpu.patchmap import inverse_points
+
+        if self._mix is None:
+            mix = Borders(model, self.W, self.H).mix(self._pm.index)
+            st = inverse_points([r.patch for r in model.regions], mix.other, mix.xy, device=self.device)
+            self._mix = (mix, st)
+        mix, st = self._mix
+        self._shown = warp().clone(self._out)
+        gtps.mix_border(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads, clamp=self.clamp)
 
     def _kernel_dirty(self, ks, old_ks, reuse) -> np.ndarray:
         """Pixels (flat bool) whose colour may depend on a re-solved kernel or a changed grid or fill."""

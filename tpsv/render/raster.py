@@ -42,6 +42,7 @@ from .. import tps
 from ..errors import TpsvError
 from ..image import to_uint8
 from ..gpu import resolve_device, warp
+from .borders import Borders
 from .pixelmap import BandMaps, no_tick, pixel_map
 
 #: Largest output side, in pixels.
@@ -119,7 +120,8 @@ def _as_int(v) -> int:
     return int(f)
 
 
-def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True) -> np.ndarray:
+def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True,
+           antialias: bool = True) -> np.ndarray:
     """Render ``model``; returns float32 sRGB ``(H, W, 3)`` in ``[0, 1]``.
 
     ``kernels``: a :class:`tpsv.tps.KernelSet` from an earlier
@@ -127,6 +129,9 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
     ``threads``: host threads for CPU launches (default: all cores).
     ``clamp``: clamp each kernel to its features' Lab range before blending
     (``tpsv.gpu.tps``; False gives the plain localised TPS).
+    ``antialias``: mix the regions across borders into the pixels the
+    borders cross (:mod:`tpsv.render.borders`); False gives one region per
+    pixel (its centre's).
 
     Outputs over :data:`ONE_PIECE_PIXELS` pixels are rendered in bands
     (:func:`render_bands`, identical pixels) into the array; outputs over
@@ -135,13 +140,13 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
     """
     W, H = output_size(model, width, height, scale)
     if W * H <= ONE_PIECE_PIXELS:
-        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False)
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias)
         return img
     if W * H > MAX_ARRAY_PIXELS:
         raise TpsvError(f"output {W}x{H} px is too large to hold in memory as one image "
                         f"(at most {MAX_ARRAY_PIXELS:,} px); render it band by band (render_bands)")
     img = np.empty((H, W, 3), np.float32)
-    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, TILE_PIXELS):
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, TILE_PIXELS, antialias):
         img[y0:y0 + rows.shape[0]] = rows
     return img
 
@@ -193,11 +198,11 @@ def render_png(model, width=None, height=None, scale=None, device: str = "cpu", 
     yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels))
 
 
-def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int):
+def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int, antialias: bool = True):
     """``(y0, float32 rows)`` of the ``W x H`` render, in bands of at most ``max_pixels`` pixels."""
     max_pixels = max(int(max_pixels), 1)
     if W * H <= max_pixels:
-        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False)
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias)
         yield 0, img
         return
     from ..gpu import tps as gtps
@@ -208,11 +213,15 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
     if ks.grid.shape[0] != len(model.regions):
         raise TpsvError("the kernel set does not belong to this model")
     maps = BandMaps(model, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
+    borders = Borders(model, W, H) if antialias else None
     dk = gtps.solve(gtps.upload(ks, device), threads=threads)
     for y0 in range(0, H, rows):
         y1 = min(y0 + rows, H)
         pm = maps.band(y0, y1)
         out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=threads, clamp=clamp)
+        if borders is not None:
+            halo = (maps.index(y0 - 1, y0)[0] if y0 > 0 else None, maps.index(y1, y1 + 1)[0] if y1 < H else None)
+            _mix_borders(model, dk, out, borders.mix(pm.index, y0, halo), threads, clamp, maps.patch_set)
         del pm
         yield y0, out.numpy().reshape(y1 - y0, W, 3)
         del out
@@ -266,7 +275,8 @@ class Stopwatch:
         self._t0 = now
 
 
-def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, clamp: bool = True, tick=no_tick) -> np.ndarray:
+def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, clamp: bool = True, tick=no_tick,
+          borders=None) -> np.ndarray:
     """Render steps 3-4: the colours of pixels whose region and ``(S, T)`` are known.
 
     Parameters
@@ -285,8 +295,10 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     clamp : bool
         Clamp each kernel to its features' Lab range before blending.
     tick : callable(str), optional
-        Called after the ``group``, ``upload``, ``solve``, ``rasterise`` and
-        ``download`` stages.
+        Called after the ``group``, ``upload``, ``solve``, ``rasterise``,
+        ``borders`` and ``download`` stages.
+    borders : BorderMix, optional
+        Anti-aliased border pixels (:mod:`tpsv.render.borders`) to mix in.
 
     Returns
     -------
@@ -308,17 +320,33 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     tick("solve")
     out = gtps.rasterise(dk, index, st, threads=threads, clamp=clamp)
     tick("rasterise")
+    _mix_borders(model, dk, out, borders, threads, clamp)
+    tick("borders")
     img = out.numpy().reshape(H, W, 3)
     tick("download")
     return img
 
 
-def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool):
+def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> None:
+    """Mix the regions across borders into ``out`` (device frame) at ``borders``' pixels."""
+    if borders is None or borders.pixels.size == 0:
+        return
+    from ..gpu import tps as gtps
+    from ..gpu.patchmap import inverse_points
+
+    st = inverse_points([r.patch for r in model.regions], borders.other, borders.xy, device=dk.device,
+                        patch_set=patch_set)
+    gtps.mix_border(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
+
+
+def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool, antialias: bool = True):
     """:func:`render` and, when ``timed``, the seconds per stage (else an empty dict)."""
     W, H = output_size(model, width, height, scale)
     device = resolve_device(device)
     watch = Stopwatch(device) if timed else None
     tick = watch if timed else no_tick
     pm = pixel_map(model, W, H, device, tick)
-    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick)
+    mix = Borders(model, W, H).mix(pm.index) if antialias else None
+    tick("edges")
+    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick, borders=mix)
     return img, (watch.times if timed else {})
