@@ -130,8 +130,14 @@ class FitTarget:
     sub: int
 
 
-def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1) -> FitTarget:
-    """A :class:`FitTarget` from the image and the pixel maps at scale 1 (``pixel_maps``)."""
+def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1, skip=None) -> FitTarget:
+    """A :class:`FitTarget` from the image and the pixel maps at scale 1 (``pixel_maps``).
+
+    ``skip``: flat pixel indices left out of the fit; the pixels a border
+    crosses, whose colour the renderer mixes from both sides
+    (``tpsv.render.borders``): fitted to them, a region's TPS would reach
+    for its neighbour's colour and bleed it into its own fill.
+    """
     rgb = np.asarray(rgb)
     if rgb.dtype == np.uint8:
         rgb = rgb.astype(np.float32) / 255.0
@@ -139,8 +145,11 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1)
     ys, xs = np.mgrid[0:h:sub, 0:w:sub]
     rows = (ys * w + xs).ravel()
     reg = np.asarray(index).ravel()[rows]
-    rows = rows[reg >= 0]
-    reg = reg[reg >= 0]
+    keep = reg >= 0
+    if skip is not None and len(skip):
+        keep &= ~np.isin(rows, np.asarray(skip))
+    rows = rows[keep]
+    reg = reg[keep]
     lab = srgb_to_lab(np.asarray(rgb, np.float32)[..., :3].reshape(-1, 3)[rows][None])[0].astype(np.float64)
     J = lab_to_srgb_jacobian(lab)
     W = np.einsum("nij,nik->njk", J, J)

@@ -141,6 +141,10 @@ def scheme_params(scheme: str = DEFAULT_SCHEME, **overrides) -> Params:
     return Params(**fields, extra=extra)
 
 
+#: Pixels whose own region covers less than this share are left out of the colour fit.
+MIXED_ALPHA = 0.9
+
+
 @dataclass
 class Geometry:
     """The threshold-independent part of a vectorisation, computed once.
@@ -188,7 +192,19 @@ class Geometry:
 
     def fit_target(self, rgb: np.ndarray, sub: int = 1):
         """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
-        return self._cached("fit", rgb, (int(sub),), lambda: fit_target(rgb, self.index, self.pixel_st(), sub))
+        return self._cached("fit", rgb, (int(sub),),
+                            lambda: fit_target(rgb, self.index, self.pixel_st(), sub, skip=self.mixed_pixels()))
+
+    def mixed_pixels(self) -> np.ndarray:
+        """Flat indices of the pixels a border crosses at scale 1 (the renderer mixes them; cached)."""
+        if "mixed" not in self._cache:
+            from types import SimpleNamespace
+
+            h, w = self.index.shape
+            shape = SimpleNamespace(regions=self.regions, width=w, height=h)
+            mix = Borders(shape, w, h).mix(self.index)
+            self._cache["mixed"] = mix.pixels[mix.alpha < MIXED_ALPHA]
+        return self._cache["mixed"]
 
     def lattice(self, lab: np.ndarray) -> LatticeGradation:
         """The gradation lattices of the image of Lab colours ``lab`` (cached per image)."""

@@ -24,7 +24,9 @@ and both smoothed masks add up to 1), so their outlines are the same curve
 and neither a gap nor an overlap opens between them; at junctions of three
 regions small gaps remain, which the renderer fills as it always has.
 
-The curve is simplified by Ramer-Douglas-Peucker at :data:`TOLERANCE` px. A
+The curve is simplified by Ramer-Douglas-Peucker at :data:`TOLERANCE` px
+where the colours are trusted, easing to :data:`LOOSE_TOLERANCE` px where
+only the smoothed mask speaks (it is no more precise than the label map). A
 region whose fitted outline would lose it (a one-pixel line of a colour
 close to a neighbour's, say) keeps its traced outline.
 """
@@ -42,8 +44,10 @@ WINDOW = 5
 CONTRAST = 0.08
 #: Gaussian (px) that smooths a region's mask where the colours cannot tell.
 SMOOTH_SIGMA = 0.7
-#: RDP tolerance of fitted outlines, px.
+#: RDP tolerance of fitted outlines where the colours tell where the border is, px.
 TOLERANCE = 0.06
+#: RDP tolerance where they cannot (low contrast, texture): the label map's own precision.
+LOOSE_TOLERANCE = 0.5
 
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
@@ -102,36 +106,39 @@ class BorderReading:
         bpad = np.pad(border, h, mode="constant", constant_values=True)
         rpad = np.pad(rgb, ((h, h), (h, h), (0, 0)), mode="edge")
         offs = [(dy, dx) for dy in range(-h, h + 1) for dx in range(-h, h + 1)]
-        sa = np.zeros((len(ys), 3))
-        sb = np.zeros((len(ys), 3))
-        na = np.zeros(len(ys))
-        nb_ = np.zeros(len(ys))
-        fa = np.zeros((len(ys), 3))
-        fb = np.zeros((len(ys), 3))
-        ma = np.zeros(len(ys))
-        mb = np.zeros(len(ys))
+        n = len(ys)
+        sums = {key: np.zeros((n, 3)) for key in ("a", "b", "fa", "fb")}
+        squares = {key: np.zeros(n) for key in ("a", "b", "fa", "fb")}
+        counts = {key: np.zeros(n) for key in ("a", "b", "fa", "fb")}
         for dy, dx in offs:
             cc = cpad[ys + h + dy, xs + h + dx]
             bb = bpad[ys + h + dy, xs + h + dx]
             col = rpad[ys + h + dy, xs + h + dx]
-            ia = cc == own
-            ib = cc == best
-            sa += col * (ia & ~bb)[:, None]
-            na += ia & ~bb
-            sb += col * (ib & ~bb)[:, None]
-            nb_ += ib & ~bb
-            fa += col * ia[:, None]
-            ma += ia
-            fb += col * ib[:, None]
-            mb += ib
-        # no interior pixel of a side in the window (thin parts): all its pixels there
-        mu_a = np.where((na > 0)[:, None], sa / np.maximum(na, 1)[:, None], fa / np.maximum(ma, 1)[:, None])
-        mu_b = np.where((nb_ > 0)[:, None], sb / np.maximum(nb_, 1)[:, None], fb / np.maximum(mb, 1)[:, None])
+            sq = (col * col).sum(axis=1)
+            for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == best) & ~bb), ("fa", cc == own), ("fb", cc == best)):
+                sums[key] += col * sel[:, None]
+                squares[key] += sq * sel
+                counts[key] += sel
+
+        def side(inner, whole):
+            # no interior pixel of a side in the window (thin parts): all its pixels there
+            use = (counts[inner] > 0)[:, None]
+            k = np.where(use[:, 0], counts[inner], np.maximum(counts[whole], 1))
+            mu = np.where(use, sums[inner], sums[whole]) / np.maximum(k, 1)[:, None]
+            var = np.where(use[:, 0], squares[inner], squares[whole]) / np.maximum(k, 1) - (mu * mu).sum(axis=1)
+            return mu, np.sqrt(np.maximum(var, 0.0))
+
+        mu_a, sd_a = side("a", "fa")
+        mu_b, sd_b = side("b", "fb")
         d = mu_a - mu_b
         dd = (d * d).sum(axis=1)
         a = ((rgb[ys, xs] - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
         self.alpha[ys, xs] = np.clip(a, 0.0, 1.0)
-        self.trust[ys, xs] = np.clip(np.sqrt(dd) / CONTRAST - 1.0, 0.0, 1.0)
+        # a side whose colour varies (texture) is a poor reference: trust fades out as its
+        # spread goes from a quarter to a half of the contrast
+        contrast = np.sqrt(dd)
+        texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
+        self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
 
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:
         """The membership field ``m`` of ``region`` in ``window`` (rows, cols) of the image."""
@@ -178,24 +185,33 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
     r0, r1 = max(int(rows[0]) - 2, 0), min(int(rows[-1]) + 3, H)
     c0, c1 = max(int(cols[0]) - 2, 0), min(int(cols[-1]) + 3, W)
     m = reading.field(comp, region, (slice(r0, r1), slice(c0, c1)))
-    # outside the image the region's own edge value carries on (the frame is no border)
-    m = np.pad(m, 1, mode="edge")
-    m[0], m[-1], m[:, 0], m[:, -1] = (np.minimum(m[0], 0.0 if r0 > 0 else m[0]),
-                                     np.minimum(m[-1], 0.0 if r1 < H else m[-1]),
-                                     np.minimum(m[:, 0], 0.0 if c0 > 0 else m[:, 0]),
-                                     np.minimum(m[:, -1], 0.0 if c1 < W else m[:, -1]))
+    # beyond the image's frame the field carries on as it is at the frame (the
+    # frame is no border: contours cross it straight and are cut there), and
+    # everything is closed by a ring of zeros
+    P = 3
+    m = np.pad(m, P, mode="edge")
+    if r0 > 0:
+        m[:P] = 0.0
+    if r1 < H:
+        m[-P:] = 0.0
+    if c0 > 0:
+        m[:, :P] = 0.0
+    if c1 < W:
+        m[:, -P:] = 0.0
     m = np.pad(m, 1, constant_values=0.0)
     polys = []
     for con in find_contours(m, 0.5):
         if np.allclose(con[0], con[-1]):
             con = con[:-1]
-        if len(con) < 3:
-            continue
-        # field index (i, j) is pixel (r0 + i - 2, c0 + j - 2), whose centre is +0.5
-        xy = np.stack([con[:, 1] + (c0 - 1.5), con[:, 0] + (r0 - 1.5)], axis=1)
-        # the frame: a contour that runs past the image's edge ends on it
+        # field index (i, j) is pixel (r0 + i - P - 1, c0 + j - P - 1), whose centre is +0.5
+        xy = np.stack([con[:, 1] + (c0 - P - 0.5), con[:, 0] + (r0 - P - 0.5)], axis=1)
         xy[:, 0] = np.clip(xy[:, 0], 0.0, float(W))
         xy[:, 1] = np.clip(xy[:, 1], 0.0, float(H))
+        # points cut onto the frame repeat: keep one of each run
+        step = np.any(xy != np.roll(xy, 1, axis=0), axis=1)
+        xy = xy[step] if step.any() else xy[:1]
+        if len(xy) < 3:
+            continue
         polys.append(xy)
     if not polys:
         return None
@@ -209,9 +225,20 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
             continue
         if cv2.pointPolygonTest(ocv, (float(p[0, 0]), float(p[0, 1])), False) > 0:
             holes.append(p if outline.signed_area(p) < 0 else p[::-1])
+    # where the colours tell where the border is, keep it to ``tolerance``; where
+    # only the smoothed mask does, the label map's own precision (half a pixel) is all there is
+    near_trust = ndimage.maximum_filter(reading.trust, size=3)
     out = []
     for i, p in enumerate([outer] + holes):
-        s = outline._simplify(p, tolerance)
+        cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
+        cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
+        tol = tolerance + (LOOSE_TOLERANCE - tolerance) * (1.0 - near_trust[cy, cx])
+        # where a border meets the image's frame, and the frame's corners, stay where they are
+        fx = (p[:, 0] == 0.0) | (p[:, 0] == W)
+        fy = (p[:, 1] == 0.0) | (p[:, 1] == H)
+        frame = fx | fy
+        tol = np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
+        s = simplify_closed(p, tol)
         a = outline.signed_area(s)
         if len(s) < 3 or (a <= 0 if i == 0 else a >= 0):
             if i == 0:
@@ -228,4 +255,51 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
     return [np.ascontiguousarray(p, np.float64) for p in out]
 
 
-__all__ = ["BorderReading", "CONTRAST", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outline"]
+def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """Indices kept by Ramer-Douglas-Peucker on an open chain, each point with its own tolerance."""
+    keep = np.zeros(len(p), bool)
+    keep[0] = keep[-1] = True
+    stack = [(0, len(p) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        seg = p[b] - p[a]
+        q = p[a + 1:b] - p[a]
+        L = float(np.hypot(*seg))
+        if L > 1e-12:
+            d = np.abs(q[:, 0] * seg[1] - q[:, 1] * seg[0]) / L
+        else:
+            d = np.hypot(q[:, 0], q[:, 1])
+        excess = d - tol[a + 1:b]
+        k = int(np.argmax(excess))
+        if excess[k] > 0:
+            m = a + 1 + k
+            keep[m] = True
+            stack.append((a, m))
+            stack.append((m, b))
+    return np.flatnonzero(keep)
+
+
+def simplify_closed(poly: np.ndarray, tol) -> np.ndarray:
+    """Ramer-Douglas-Peucker of a closed polygon with a tolerance per point (px).
+
+    The polygon is cut at its first point and the point farthest from it, and
+    each half simplified; every dropped point lies within its own tolerance of
+    the kept chord (of its line, as ``cv2.approxPolyDP`` measures).
+    """
+    p = np.asarray(poly, np.float64)
+    tol = np.broadcast_to(np.asarray(tol, np.float64), (len(p),))
+    if len(p) < 4:
+        return p.copy()
+    far = int(np.argmax(np.hypot(*(p - p[0]).T)))
+    if far == 0:
+        return p[:1].copy()
+    first = _rdp_open(p[:far + 1], tol[:far + 1])
+    ring = np.concatenate([p[far:], p[:1]])
+    second = _rdp_open(ring, np.concatenate([tol[far:], tol[:1]]))[1:-1] + far
+    return p[np.concatenate([first, second])]
+
+
+__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outline",
+           "simplify_closed"]
