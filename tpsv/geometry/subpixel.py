@@ -46,6 +46,9 @@ CONTRAST = 0.08
 SMOOTH_SIGMA = 0.7
 #: RDP tolerance of fitted outlines where the colours tell where the border is, px.
 TOLERANCE = 0.06
+#: Outline vertices are rounded to 1/GRID px, the ``.tpsv`` file's outline quantum
+#: (``tpsv.codec.quant.OUTLINE_SCALE``; a test keeps them equal).
+GRID = 8
 #: RDP tolerance where they cannot (low contrast, texture): the label map's own precision.
 LOOSE_TOLERANCE = 0.5
 
@@ -238,7 +241,9 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
         fy = (p[:, 1] == 0.0) | (p[:, 1] == H)
         frame = fx | fy
         tol = np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
-        s = simplify_closed(p, tol)
+        # on the file's grid already: the encoder's scale-1 maps are then the decoded file's
+        s = np.round(simplify_closed(p, tol) * GRID) / GRID
+        s = s[np.any(s != np.roll(s, 1, axis=0), axis=1)]
         a = outline.signed_area(s)
         if len(s) < 3 or (a <= 0 if i == 0 else a >= 0):
             if i == 0:
