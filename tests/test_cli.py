@@ -198,3 +198,18 @@ def test_segment_bad_inputs(tmp_path, small_png, small_rgb):
     assert_one_line_error(run("segment", notimg, "-o", out))
     assert_one_line_error(run("segment", small_png, "-o", out, "--strokes", notimg))
     assert not out.exists()
+
+
+def test_render_antialias_switch(tmp_path, tpsv_file):
+    """--no-antialias gives one region per pixel: the library's render(antialias=False), byte for byte."""
+    from tpsv import codec
+    from tpsv.image import encode_png
+    from tpsv.render.raster import render
+
+    model = codec.load(tpsv_file)
+    for flag, aa in (("--antialias", True), ("--no-antialias", False)):
+        out = tmp_path / f"{flag}.png"
+        res = run("render", tpsv_file, "-o", out, "--scale", 3, flag)
+        assert res.exit_code == 0, res.output
+        assert out.read_bytes() == encode_png(render(model, scale=3, antialias=aa))
+    assert (tmp_path / "--antialias.png").read_bytes() != (tmp_path / "--no-antialias.png").read_bytes()

@@ -17,7 +17,7 @@ from ..render.magnify import magnify_raster
 from ..render.raster import output_size, render_png
 
 
-def _render_png(out, model, output, size, scale, device) -> dict:
+def _render_png(out, model, output, size, scale, device, antialias: bool = True) -> dict:
     """Render ``model`` at ``size`` (W, H) or else at ``scale`` and stage the PNG; returns the summary.
 
     Large outputs are rendered in bands and streamed into the staged file, so
@@ -26,7 +26,7 @@ def _render_png(out, model, output, size, scale, device) -> dict:
     t0 = time.perf_counter()
     w, h = size if size is not None else (None, None)
     W, H = output_size(model, w, h, None if size is not None else scale)
-    out.write(output, render_png(model, W, H, device=device))
+    out.write(output, render_png(model, W, H, device=device, antialias=antialias))
     seconds = time.perf_counter() - t0
     return {"width": W, "height": H, "seconds": seconds, "device": device}
 
@@ -43,17 +43,19 @@ def _report(ctx, output, info: dict, as_json: bool) -> None:
 @output_option("PNG to write ('-': stdout).")
 @scale_option("Output scale (default 1).", default=None)
 @click.option("--size", type=SIZE, default=None, help="Output size in pixels (instead of --scale).")
+@click.option("--antialias/--no-antialias", default=True, show_default=True,
+              help="Blend the pixels a region border crosses (off: one region per pixel, its centre's).")
 @device_option
 @json_option
 @click.pass_context
-def render(ctx, path, output, scale, size, device, as_json):
+def render(ctx, path, output, scale, size, antialias, device, as_json):
     """Render a .tpsv file to a PNG at any scale or size."""
     check_json_target(as_json, output)
     if scale is not None and size is not None:
         raise click.UsageError("--scale and --size cannot both be used")
     with claim_outputs([path], ("-o", output)) as out:
         device = device_for(ctx, device)
-        info = _render_png(out, codec.load(path), output, size, scale or 1.0, device)
+        info = _render_png(out, codec.load(path), output, size, scale or 1.0, device, antialias)
     _report(ctx, output, info, as_json)
 
 

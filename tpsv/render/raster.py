@@ -152,7 +152,7 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
 
 
 def render_bands(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
-                 clamp: bool = True, max_pixels: int = TILE_PIXELS):
+                 clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True):
     """Render ``model`` band by band: yields ``(y0, rows)``, top to bottom.
 
     ``rows`` is uint8 sRGB ``(h, W, 3)``, rows ``y0 .. y0 + h`` of the output,
@@ -169,12 +169,12 @@ def render_bands(model, width=None, height=None, scale=None, device: str = "cpu"
     rows : ndarray (h, W, 3) uint8
     """
     W, H = output_size(model, width, height, scale)
-    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels):
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias):
         yield y0, to_uint8(rows)
 
 
 def render_png(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
-               clamp: bool = True, max_pixels: int = TILE_PIXELS):
+               clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True):
     """The PNG file of the render, piece by piece: what ``tpsv render`` writes.
 
     An output of at most ``max_pixels`` pixels is one piece,
@@ -193,9 +193,9 @@ def render_png(model, width=None, height=None, scale=None, device: str = "cpu", 
 
     W, H = output_size(model, width, height, scale)
     if W * H <= max_pixels:
-        yield encode_png(render(model, W, H, None, device, kernels, threads, clamp))
+        yield encode_png(render(model, W, H, None, device, kernels, threads, clamp, antialias))
         return
-    yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels))
+    yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels, antialias))
 
 
 def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int, antialias: bool = True):
