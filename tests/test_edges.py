@@ -180,3 +180,29 @@ def test_fitted_outlines_are_on_the_file_grid():
         for p in reg.outline:
             assert np.array_equal(p * OUTLINE_SCALE, np.round(p * OUTLINE_SCALE))
     assert stored_maps(g) is not None
+
+
+def test_traced_outlines_stay_available(tmp_path):
+    """--outlines traced: the label map's pixel edges (half-pixel lattice), as before the fitting."""
+    from click.testing import CliRunner
+
+    from tpsv import codec
+    from tpsv.cli import main
+    from tpsv.errors import TpsvError
+    from tpsv.image import encode_labels, encode_png
+
+    rgb, labels, _ = edge_picture(16, 8.3)
+    traced = vectorize(rgb, labels, search=False, outlines="traced").model
+    fitted = vectorize(rgb, labels, search=False).model
+    for reg in traced.regions:
+        for p in reg.outline:
+            assert np.array_equal(p * 2, np.round(p * 2))
+    assert any(not np.array_equal(p * 2, np.round(p * 2)) for reg in fitted.regions for p in reg.outline)
+    with pytest.raises(TpsvError, match="fitted or traced"):
+        vectorize(rgb, labels, search=False, outlines="smooth")
+    (tmp_path / "in.png").write_bytes(encode_png(rgb))
+    (tmp_path / "labels.png").write_bytes(encode_labels(labels))
+    res = CliRunner().invoke(main, ["vectorize", str(tmp_path / "in.png"), "--labels", str(tmp_path / "labels.png"),
+                                    "--no-search", "--outlines", "traced", "-o", str(tmp_path / "t.tpsv")])
+    assert res.exit_code == 0, res.output
+    assert codec.load(tmp_path / "t.tpsv").regions[0].outline[0].tolist() == traced.regions[0].outline[0].tolist()

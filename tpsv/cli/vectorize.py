@@ -31,6 +31,9 @@ def vectorize_options(f):
                      help="Features per TPS kernel (K) [default: 32; 64 with --plain]."),
         click.option("--smoothing", type=FINITE_NON_NEGATIVE, default=Params.smoothing, show_default=True,
                      help="TPS smoothing term (0: exact interpolation)."),
+        click.option("--outlines", type=click.Choice(["fitted", "traced"]), default="fitted", show_default=True,
+                     help="Region borders fitted to the image's edges at sub-pixel precision (crisp when "
+                          "magnified), or traced along the label map's pixels (smaller files)."),
         click.option("--plain", is_flag=True, default=False,
                      help="The paper's plain scheme: pairs on every Canny pixel, superpixel-boundary gradation "
                           "features, sampled colours, finest quantisation (default: compact lattice features "
@@ -42,7 +45,7 @@ def vectorize_options(f):
 
 
 def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, search, device,
-                  plain=False):
+                  plain=False, outlines="fitted"):
     """Read the inputs and vectorise, with a progress bar for the search on a terminal."""
     rgb = read_image(image)
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
@@ -55,7 +58,7 @@ def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel
 
         result = vectorize_image(
             rgb, lab, t_canny=t_canny, t_super=t_super, search=search, iterations=iterations,
-            seed=seed, params=params, device=device, progress=progress,
+            seed=seed, params=params, device=device, progress=progress, outlines=outlines,
         )
     return rgb, result
 
@@ -93,14 +96,14 @@ def summary(rgb, result) -> dict:
 @device_option
 @json_option
 @click.pass_context
-def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, plain,
+def vectorize(ctx, image, output, labels, seed, iterations, t_canny, t_super, kernel_size, smoothing, outlines, plain,
               search, preview, device, as_json):
     """Vectorise IMAGE into a .tpsv hybrid vector image."""
     check_json_target(as_json, output)
     with claim_outputs([image, labels], ("-o", output), ("--preview", preview)) as out:
         device = device_for(ctx, device)
         rgb, result = run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size,
-                                    smoothing, search, device, plain=plain)
+                                    smoothing, search, device, plain=plain, outlines=outlines)
         out.write(output, result.data)
         if preview:
             out.write(preview, encode_png(draw_preview(rgb, result.model)))

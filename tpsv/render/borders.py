@@ -29,8 +29,8 @@ import numpy as np
 
 #: Longest outline piece, output pixels.
 PIECE_PX = 1.0
-#: Most outline pieces held for one output (bounds memory: about 40 bytes each).
-MAX_PIECES = 1 << 22
+#: Most outline pieces held for one output (bounds memory: about 100 bytes each while built).
+MAX_PIECES = 1 << 21
 #: Pieces measured per border pixel.
 NEAREST = 8
 
