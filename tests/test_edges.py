@@ -206,3 +206,26 @@ def test_traced_outlines_stay_available(tmp_path):
                                     "--no-search", "--outlines", "traced", "-o", str(tmp_path / "t.tpsv")])
     assert res.exit_code == 0, res.output
     assert codec.load(tmp_path / "t.tpsv").regions[0].outline[0].tolist() == traced.regions[0].outline[0].tolist()
+
+
+def test_hostile_outlines_render_with_bounded_border_work():
+    """A self-intersecting zig-zag outline across the canvas: pieces stay within MAX_PIECES, the render finishes."""
+    import copy
+
+    from tpsv.render import borders
+
+    rgb, labels, _ = edge_picture(16, 8.3)
+    m = copy.deepcopy(vectorize(rgb, labels, search=False).model)
+    n = 4001
+    zig = np.column_stack([np.linspace(0, 16, n), np.where(np.arange(n) % 2 == 0, 0.0, 16.0)])
+    m.regions[0].outline = [zig] + list(m.regions[0].outline[1:])
+    b = Borders(m, 4096, 4096)
+    assert len(b.a) <= borders.MAX_PIECES + len(zig) + 64
+    from tpsv.errors import TpsvError
+
+    with pytest.raises(TpsvError, match="too complex"):  # the fill's own budget refuses it, in one line
+        render(m, scale=8)
+    few = np.column_stack([np.linspace(0, 16, 41), np.where(np.arange(41) % 2 == 0, 0.0, 16.0)])
+    m.regions[0].outline = [few] + list(m.regions[0].outline[1:])
+    out = render(m, scale=8)
+    assert np.isfinite(out).all() and out.shape == (128, 128, 3)
