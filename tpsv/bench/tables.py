@@ -161,7 +161,7 @@ def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080)
         "device": device,
         "size": list(size),
         "stages_ms": {k: v * 1e3 for k, v in t.items()},
-        "device_ms": (t["patchmap"] + t["solve"] + t["rasterise"]) * 1e3,
+        "device_ms": (t["patchmap"] + t["solve"] + t["rasterise"] + t.get("borders", 0.0)) * 1e3,
         "max_abs_diff_vs_cpu": float(np.abs(img - ref).max()),
     }
 
@@ -435,18 +435,19 @@ def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
     if devs:
         out.append("")
         out.append(f"Full HD (1920x1080) on {device}: ms per stage (best of 10), max |{device} - cpu|")
-        out.append(f"{'image':<12}{'patchmap':>10}{'solve':>8}{'raster':>8}{'device':>8}{'regions*':>10}"
-                   f"{'upload*':>9}{'group*':>8}{'max diff':>10}")
+        out.append(f"{'image':<12}{'patchmap':>10}{'solve':>8}{'raster':>8}{'borders':>9}{'device':>8}{'regions*':>10}"
+                   f"{'edges*':>8}{'upload*':>9}{'group*':>8}{'max diff':>10}")
         for r in devs:
             d = r["device_check"]
             st = d["stages_ms"]
             up = st.get("upload_regions", 0.0) + st.get("upload", 0.0)
             out.append(f"{r['name']:<12}{st['patchmap']:>10.2f}{st['solve']:>8.2f}{st['rasterise']:>8.2f}"
-                       f"{d['device_ms']:>8.2f}{st['regions']:>10.1f}{up:>9.1f}{st['group']:>8.1f}"
-                       f"{d['max_abs_diff_vs_cpu']:>10.2e}")
-        out.append("  * host stages and host-to-device copies (outline rasterisation, region map and kernel")
-        out.append("    upload, kernel grouping), done once per model and output size; 'device' is the sum of")
-        out.append("    the device stages: inverse patch map + build/solve + rasterise")
+                       f"{st.get('borders', 0.0):>9.2f}{d['device_ms']:>8.2f}{st['regions']:>10.1f}"
+                       f"{st.get('edges', 0.0):>8.1f}{up:>9.1f}{st['group']:>8.1f}{d['max_abs_diff_vs_cpu']:>10.2e}")
+        out.append("  * host stages and host-to-device copies (outline rasterisation, border pixels and their")
+        out.append("    coverage, region map and kernel upload, kernel grouping), done once per model and output")
+        out.append("    size; 'device' is the sum of the device stages: inverse patch map + build/solve +")
+        out.append("    rasterise + border mix")
     eds = [r for r in results if r.get("edits")]
     if eds:
         out.append("")

@@ -8,7 +8,11 @@
    by default each kernel is clamped to its features' Lab range before
    blending (removes TPS overshoot; ``clamp=False`` for the plain TPS).
 
-Steps 3-4 are :func:`shade`, which the encoder calls on pixel maps it keeps.
+5. :mod:`tpsv.render.borders`: every pixel a region border crosses gets
+   its box-filter coverage of the region across, mixed in on the device
+   (``antialias=False``: one region per pixel, its centre's).
+
+Steps 3-5 are :func:`shade`, which the encoder calls on pixel maps it keeps.
 
 Output pixel ``(X, Y)`` at scale ``k`` samples ``((X + 0.5) / k, (Y + 0.5) / k)``
 of the model's pixel space (``tpsv.model``); for a size ``W x H`` the scale is
@@ -231,9 +235,10 @@ def render_timed(model, width=None, height=None, scale=None, device: str = "cpu"
     """Render and time each stage (seconds, best of ``repeat``): returns ``(image, timings)``.
 
     Stages: ``regions`` (outline rasterisation, host), ``upload_regions``
-    (the region map to the device), ``patchmap``,
-    ``group`` (host), ``upload``, ``solve`` (build + solve),
-    ``rasterise``, ``download``, and ``total`` (their sum). Device stages end
+    (the region map to the device), ``patchmap``, ``edges`` (the border
+    pixels and their coverage, host), ``group`` (host), ``upload``,
+    ``solve`` (build + solve), ``rasterise``, ``borders`` (the regions
+    across mixed in), ``download``, and ``total`` (their sum). Device stages end
     with a device synchronisation. The first call on a device also compiles
     or loads Warp modules: call once before timing (``repeat >= 2``).
     """
