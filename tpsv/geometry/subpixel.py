@@ -73,6 +73,9 @@ class BorderReading:
         Share of the pixel's own region, read from its colour (1 off the border).
     trust : ndarray (H, W) float64
         How far ``alpha`` is to be believed, in [0, 1] (0 off the border).
+    near_trust : ndarray (H, W) float64
+        The largest ``trust`` in each pixel's 3 x 3 neighbourhood (what an
+        outline point between pixels goes by).
     """
 
     def __init__(self, comp: np.ndarray, rgb: np.ndarray):
@@ -89,6 +92,7 @@ class BorderReading:
         self.across = np.full((H, W), -1, np.int32)
         self.alpha = np.ones((H, W))
         self.trust = np.zeros((H, W))
+        self.near_trust = self.trust
         ys, xs = np.nonzero(border)
         if ys.size == 0:
             return
@@ -142,6 +146,7 @@ class BorderReading:
         contrast = np.sqrt(dd)
         texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
         self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
+        self.near_trust = ndimage.maximum_filter(self.trust, size=3)
 
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:
         """The membership field ``m`` of ``region`` in ``window`` (rows, cols) of the image."""
@@ -230,7 +235,7 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
             holes.append(p if outline.signed_area(p) < 0 else p[::-1])
     # where the colours tell where the border is, keep it to ``tolerance``; where
     # only the smoothed mask does, the label map's own precision (half a pixel) is all there is
-    near_trust = ndimage.maximum_filter(reading.trust, size=3)
+    near_trust = reading.near_trust
     out = []
     for i, p in enumerate([outer] + holes):
         cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
