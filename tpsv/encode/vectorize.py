@@ -195,16 +195,20 @@ class Geometry:
         return self._cached("fit", rgb, (int(sub),),
                             lambda: fit_target(rgb, self.index, self.pixel_st(), sub, skip=self.mixed_pixels()))
 
-    def mixed_pixels(self) -> np.ndarray:
-        """Flat indices of the pixels a border crosses at scale 1 (the renderer mixes them; cached)."""
-        if "mixed" not in self._cache:
+    def border_mix(self):
+        """The anti-aliased border pixels at scale 1, as the renderer finds them (:mod:`tpsv.render.borders`; cached)."""
+        if "borders" not in self._cache:
             from types import SimpleNamespace
 
             h, w = self.index.shape
-            shape = SimpleNamespace(regions=self.regions, width=w, height=h)
-            mix = Borders(shape, w, h).mix(self.index)
-            self._cache["mixed"] = mix.pixels[mix.alpha < MIXED_ALPHA]
-        return self._cache["mixed"]
+            shape = SimpleNamespace(regions=self.regions, width=w, height=h)  # Borders reads only these
+            self._cache["borders"] = Borders(shape, w, h).mix(self.index)
+        return self._cache["borders"]
+
+    def mixed_pixels(self) -> np.ndarray:
+        """Flat indices of the pixels a border crosses at scale 1 (the renderer mixes them)."""
+        mix = self.border_mix()
+        return mix.pixels[mix.alpha < MIXED_ALPHA]
 
     def lattice(self, lab: np.ndarray) -> LatticeGradation:
         """The gradation lattices of the image of Lab colours ``lab`` (cached per image)."""
@@ -409,11 +413,12 @@ def evaluate(
         Grouped from a model with the same feature positions (its colours are
         replaced by the decoded ones, :func:`tpsv.tps.recolor`), to save the
         grouping.
-    maps : (index, st), optional
-        The region index and ``(S, T)`` maps at scale 1 of the decoded model's
-        regions (``Geometry.index``, ``Geometry.pixel_st()`` when quantisation
+    maps : (index, st, borders), optional
+        The region index and ``(S, T)`` maps and the border pixels at scale 1
+        of the decoded model's regions (``Geometry.index``,
+        ``Geometry.pixel_st()``, ``Geometry.border_mix()`` when quantisation
         leaves the regions unchanged), to save computing them; then only
-        render steps 3-4 run (:func:`tpsv.render.raster.shade`).
+        render steps 3-5 run (:func:`tpsv.render.raster.shade`).
 
     Returns
     -------
@@ -427,8 +432,7 @@ def evaluate(
     if maps is None:
         out = render(decoded, device=device, kernels=kernels)
     else:
-        mix = Borders(decoded, decoded.width, decoded.height).mix(maps[0])
-        out = shade(decoded, maps[0], maps[1], device=device, kernels=kernels, borders=mix)
+        out = shade(decoded, maps[0], maps[1], device=device, kernels=kernels, borders=maps[2])
     return data, decoded, metrics.mse(rgb, out)
 
 
@@ -448,7 +452,7 @@ def _same_region(a: Region, b: Region) -> bool:
 
 
 def stored_maps(geometry: Geometry) -> tuple | None:
-    """The pixel maps ``(index, (S, T))`` at scale 1 of the regions as the file stores them.
+    """The pixel maps ``(index, (S, T), borders)`` at scale 1 of the regions as the file stores them.
 
     ``geometry``'s own maps when quantisation leaves every region unchanged
     (then a render of a decoded model can reuse them), else None.
@@ -456,7 +460,7 @@ def stored_maps(geometry: Geometry) -> tuple | None:
     h, w = geometry.index.shape
     same = codec.quantize(Model(width=w, height=h, regions=geometry.regions, features=Features.empty()))
     if all(_same_region(a, b) for a, b in zip(geometry.regions, same.regions)):
-        return geometry.index, geometry.pixel_st()
+        return geometry.index, geometry.pixel_st(), geometry.border_mix()
     return None
 
 
