@@ -328,7 +328,8 @@ def test_outline_shift():
     # a shift that takes a stored coordinate beyond 32 bits is refused
     data = codec.encode(half_pixel_model())
     base = msgpack.unpackb(raw_sections(data)[1])
-    big = np.array([2**29, 0, 0, 0], np.int64)
+    big = np.zeros(len(base["xy"]) // 8, np.int64)
+    big[0] = 2**29
     xy = b"".join(sections.to_planes(sections.delta_zigzag(v.astype(np.int32), 4, 1), 4) for v in (big, big))
     reject(assemble(data, {"regions": pack({**base, "xy_shift": 3, "xy": xy})}), "beyond the 32-bit range")
     m = half_pixel_model()
@@ -370,7 +371,7 @@ def test_section_sizes_break_down_the_file():
 def test_file_starts_with_magic_and_version():
     data = codec.encode(tiny_model())
     assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
-    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 1
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 2
 
 
 def test_compact_features():
@@ -525,10 +526,10 @@ def test_text_mode_mangling_is_named():
     reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
 
 
-@pytest.mark.parametrize("version", [2, 7, 65535])
+@pytest.mark.parametrize("version", [3, 7, 65535])
 def test_future_version_rejected(version):
     data = patch_header(codec.encode(tiny_model()), version=version)
-    reject(data, f"unsupported format version {version} (this tpsv reads up to 1)")
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 2)")
     # Even a short file of a future version gets the version message.
     reject(data[:12], f"unsupported format version {version}")
 
@@ -670,7 +671,13 @@ def test_region_section_validated():
         ({"grid": b"\x02\x01"}, "grids hold 6 control points, header says 4"),
         ({"polys": 5}, "polys is not a bin"),
         ({"polys": struct.pack("<I", 2)}, "2 polygons, header says 1"),
-        ({"verts": bytes([5, 0, 0, 0])}, "5 vertices, header says 4"),
+        ({"verts": bytes([5, 0, 0, 0])}, "unknown key 'verts'"),
+        ({"chains": 5}, "chains = 5 not in 0..4"),
+        ({"chains": 2, "chain_verts": bytes([4, 1, 0, 0, 0, 0, 0, 0])}, "chain 1 has 1 vertices (at least 2)"),
+        ({"chain_verts": bytes([9, 0, 0, 0])}, "chains hold 9 vertices, more than 5"),
+        ({"refs": bytes([0, 0, 0, 0]), "ref": b""}, "polygon 0 refers to no chain"),
+        ({"refs": bytes([5, 0, 0, 0])}, "5 chain references for 4 vertices"),
+        ({"ref": bytes([3, 0, 0, 0])}, "reference 0 to chain 1, but there are 1"),
         ({"xy": b"\x00" * 7}, "xy has 7 bytes"),
         ({"ctrl": b""}, "ctrl has 0 bytes"),
         ({"xy_shift": 4}, "xy_shift = 4 not in 0..3"),
@@ -838,12 +845,27 @@ def test_limits_are_exported():
 # ------------------------------------------------------------------ re-encoding (issue 14)
 
 CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
+VERSION_1 = sorted((Path(__file__).parent / "data" / "v1").glob("*.tpsv"))
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
 def test_reencoding_a_sample_file_gives_its_bytes(path):
     data = path.read_bytes()
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION
     assert codec.encode(codec.decode(data)) == data
+
+
+@pytest.mark.parametrize("path", VERSION_1, ids=lambda p: p.stem)
+def test_version_1_files_are_read_and_written_back_as_version_2(path):
+    """docs/FORMAT.md, Versions: a version-1 file decodes as it always did; encoding writes version 2, same model."""
+    data = path.read_bytes()
+    assert struct.unpack_from("<H", data, 8)[0] == 1
+    m = codec.decode(data)
+    again = codec.encode(m)
+    assert struct.unpack_from("<H", again, 8)[0] == 2
+    assert_models_identical(codec.decode(again), m)
+    # shared borders are stored once: never larger than the version-1 file's outlines
+    assert codec.section_sizes(again)["regions"] <= codec.section_sizes(data)["regions"] + 16
 
 
 @pytest.mark.parametrize("make", MODELS, ids=lambda f: f.__name__)

@@ -1,7 +1,8 @@
 """Seed inputs: the bundled corpus of real files plus small hand-built models.
 
 The corpus (``corpus/*.tpsv``) holds files written by ``tpsv vectorize`` on the
-bundled samples (``corpus/README.md``); the hand-built models reach corners a
+bundled samples (``corpus/README.md``), and ``tests/data/v1`` the same samples
+as format version 1 once wrote them (the decoder still reads those); the hand-built models reach corners a
 vectorized photo never shows (no features, no regions, holes, a 1x1 canvas,
 dense curvilinear pairs, every supported kernel size).
 """
@@ -17,6 +18,7 @@ from tpsv import codec
 from tpsv.model import CURVILINEAR, Features, Model, Params, Patch, Region
 
 CORPUS = Path(__file__).resolve().parent / "corpus"
+VERSION_1 = Path(__file__).resolve().parents[1] / "data" / "v1"
 
 
 def grid_ctrl(m: int, n: int, x0: float, y0: float, w: float, h: float) -> np.ndarray:
@@ -109,5 +111,6 @@ HAND_MODELS = {
 def seed_files() -> tuple[tuple[str, bytes], ...]:
     """Every seed as ``(name, file bytes)``: the corpus, then the hand-built models encoded."""
     out = [(p.stem, p.read_bytes()) for p in sorted(CORPUS.glob("*.tpsv"))]
+    out += [(f"v1-{p.stem}", p.read_bytes()) for p in sorted(VERSION_1.glob("*.tpsv"))]
     out += [(name, codec.encode(make())) for name, make in HAND_MODELS.items()]
     return tuple(out)

@@ -18,7 +18,7 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 1
+VERSION = 2
 
 #: Little-endian header: magic, version, flags, width, height, 5 counts,
 #: 3 (compressed, raw) section sizes, payload CRC-32, header CRC-32.
@@ -131,10 +131,14 @@ def raw_size_bounds(h: Header) -> tuple[int, int, int]:
         + 9 * h.regions  # label: msgpack int, at most 9 bytes each
         + 2 * h.regions  # grid: M-1, N-1 as uint8
         + 4 * h.regions  # polygons per region
-        + 4 * h.polygons  # vertices per polygon
-        + 8 * h.vertices  # x, y as 32-bit
         + 32 * h.ctrl_points  # 4 vectors x 2 coordinates x 32-bit
     )
+    if h.version >= 2:
+        # chains (K <= V): count, vertices per chain, references per polygon,
+        # references (at most V), and at most V + K vertices of x, y
+        regions += 9 + 4 * h.vertices + 4 * h.polygons + 4 * h.vertices + 16 * h.vertices
+    else:
+        regions += 4 * h.polygons + 8 * h.vertices  # vertices per polygon, x, y as 32-bit
     features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features
     return params, regions, features
 
@@ -181,7 +185,7 @@ def parse_header(data: bytes | memoryview) -> Header:
     if zlib.crc32(data[:HEADER_CRC_OFFSET]) != header_crc:
         raise TpsvFormatError("corrupt header: header checksum mismatch")
     if flags != 0:
-        raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {VERSION} defines none)")
+        raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {version} defines none)")
     h = Header(version, flags, width, height, regions, polygons, vertices,
                ctrl_points, features, (c0, c1, c2), (r0, r1, r2))
     check_header_limits(h)

@@ -13,7 +13,7 @@ import msgpack
 import numpy as np
 
 from ..errors import TpsvFormatError
-from . import layout
+from . import chains, layout
 from .quant import PARAM_FIELDS, Quantized
 
 #: Lags of the delta coding of feature columns (measured on the samples).
@@ -34,7 +34,9 @@ MAX_XY_SHIFT = 3
 #: or along the grid row.
 GEOMETRY_LAG = 1
 
-REGION_KEYS = ("label", "grid", "polys", "verts", "xy_shift", "xy", "ctrl")
+#: Version 1 stored every polygon's vertices; version 2 stores chains (shared borders once).
+REGION_KEYS_V1 = ("label", "grid", "polys", "verts", "xy_shift", "xy", "ctrl")
+REGION_KEYS = ("label", "grid", "polys", "chains", "chain_verts", "refs", "ref", "xy_shift", "xy", "ctrl")
 FEATURE_KEYS = ("st_bits", "count", "st", "lab_lag", "lab", "kind", "pair")
 PARAM_KEYS = tuple(PARAM_FIELDS) + ("extra",)
 
@@ -129,15 +131,21 @@ def lab_lag(lab: np.ndarray) -> int:
 
 
 def pack_regions(q: Quantized) -> bytes:
-    """The regions section: labels, grids, outlines and control vectors."""
+    """The regions section: labels, grids, outlines (as chains) and control vectors."""
     grid = (q.grid - 1).astype(np.uint8)
-    shift = xy_shift(q.xy)
-    xy = np.asarray(q.xy, np.int64) >> shift
+    polys = np.split(np.asarray(q.xy, np.int32), np.cumsum(q.vert_counts)[:-1]) if q.vert_counts.size else []
+    chain_list, refs = chains.decompose(polys)
+    chain_xy = np.concatenate(chain_list) if chain_list else np.zeros((0, 2), np.int32)
+    shift = xy_shift(chain_xy)
+    xy = chain_xy.astype(np.int64) >> shift
     return _packb({
         "label": list(q.labels),
         "grid": grid[:, 0].tobytes() + grid[:, 1].tobytes(),
         "polys": to_planes(q.poly_counts, 4),
-        "verts": to_planes(q.vert_counts, 4),
+        "chains": len(chain_list),
+        "chain_verts": to_planes(np.array([len(c) for c in chain_list], np.int64), 4),
+        "refs": to_planes(np.array([len(r) for r in refs], np.int64), 4),
+        "ref": to_planes(chains.ref_codes(np.array([c for r in refs for c in r], np.int64)), 4),
         "xy_shift": shift,
         "xy": b"".join(
             to_planes(delta_zigzag(xy[:, k].astype(np.int32), 4, GEOMETRY_LAG), 4) for k in range(2)
@@ -270,7 +278,7 @@ def unpack_params(raw: bytes) -> dict:
 def unpack_regions(raw: bytes, h: layout.Header) -> dict:
     """Region arrays from the regions section, sized and summed against ``h``."""
     name = "regions"
-    obj = _expect_map(unpack(raw, name), REGION_KEYS, name)
+    obj = _expect_map(unpack(raw, name), REGION_KEYS if h.version >= 2 else REGION_KEYS_V1, name)
     r = h.regions
     labels = obj["label"]
     if not isinstance(labels, list) or len(labels) != r:
@@ -287,23 +295,39 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
         raise TpsvFormatError(
             f"section {name}: regions hold {int(poly_counts.sum())} polygons, header says {h.polygons}"
         )
-    p = h.polygons
-    vert_counts = from_planes(_expect_bin(obj, "verts", 4 * p, name), p, 4).astype(np.int64)
-    if int(vert_counts.sum()) != h.vertices:
-        raise TpsvFormatError(
-            f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {h.vertices}"
-        )
-    v = h.vertices
+    p, v = h.polygons, h.vertices
+    if h.version >= 2:
+        # every chain gives at least one vertex to some polygon, every reference too:
+        # K <= V, sum(refs) <= V and sum(chain_verts) <= V + K, all before reading them
+        k = _expect_int(obj, "chains", 0, v, name)
+        chain_counts = from_planes(_expect_bin(obj, "chain_verts", 4 * k, name), k, 4).astype(np.int64)
+        stored = int(chain_counts.sum())
+        if stored > v + k:
+            raise TpsvFormatError(f"section {name}: chains hold {stored} vertices, more than {v + k}")
+        ref_counts = from_planes(_expect_bin(obj, "refs", 4 * p, name), p, 4).astype(np.int64)
+        n_refs = int(ref_counts.sum())
+        if n_refs > v:
+            raise TpsvFormatError(f"section {name}: {n_refs} chain references for {v} vertices")
+        refs = chains.ref_values(from_planes(_expect_bin(obj, "ref", 4 * n_refs, name), n_refs, 4).astype(np.int64))
+    else:
+        vert_counts = from_planes(_expect_bin(obj, "verts", 4 * p, name), p, 4).astype(np.int64)
+        if int(vert_counts.sum()) != v:
+            raise TpsvFormatError(
+                f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {v}"
+            )
+        stored = v
     shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT, name)
-    xy_buf = _expect_bin(obj, "xy", 8 * v, name)
+    xy_buf = _expect_bin(obj, "xy", 8 * stored, name)
     xy = np.stack([
-        undelta_zigzag(from_planes(xy_buf[4 * v * k:4 * v * (k + 1)], v, 4), 4, GEOMETRY_LAG)
+        undelta_zigzag(from_planes(xy_buf[4 * stored * k:4 * stored * (k + 1)], stored, 4), 4, GEOMETRY_LAG)
         for k in range(2)
     ], axis=1).astype(np.int64)
     lim = 2**31 >> shift
-    if v and (xy.min() < -lim or xy.max() >= lim):
+    if stored and (xy.min() < -lim or xy.max() >= lim):
         raise TpsvFormatError(f"section {name}: outline coordinate beyond the 32-bit range after xy_shift {shift}")
     xy = (xy << shift).astype(np.int32)
+    if h.version >= 2:
+        vert_counts, xy = chains.assemble(chain_counts, xy, ref_counts, refs, v)
     c = 8 * h.ctrl_points
     ctrl = undelta_zigzag(
         from_planes(_expect_bin(obj, "ctrl", 4 * c, name), c, 4), 4, GEOMETRY_LAG
