@@ -55,20 +55,44 @@ def test_fitted_border_lies_on_the_true_edge(x0, slope):
     assert np.all(np.abs(t_in[:, 0] * 2 - np.round(t_in[:, 0] * 2)) < 1e-9)
 
 
-def test_shared_borders_are_one_curve():
-    """Two regions meeting at an anti-aliased edge get the same curve: no gap, no overlap, at any scale."""
-    rgb, labels, _ = edge_picture(24, 12.4, 0.2)
-    res = vectorize(rgb, labels, search=False)
-    m = res.model
+def three_regions(size: int = 32, density: int = 16):
+    """A tilted vertical edge meeting a tilted horizontal one: three regions and a T junction, box-filtered."""
+    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
+    lab = np.where(xx < 13.3 + 0.15 * (yy - 16), 0, np.where(yy < 17.6 - 0.1 * (xx - 16), 1, 2))
+    cols = np.array([A, B, [0.2, 0.8, 0.3]])
+    rgb = cols[lab].reshape(size, density, size, density, 3).mean(axis=(1, 3)).astype(np.float32)
+    return rgb, lab[density // 2::density, density // 2::density].astype(np.int32)
+
+
+@pytest.mark.parametrize("picture", ["two", "three"])
+def test_shared_borders_are_one_curve(picture):
+    """Regions meeting at anti-aliased edges (and at a junction of three) leave no gap or overlap at any scale."""
+    from tpsv import codec
+    from tpsv.geometry import outline
+
+    rgb, labels = edge_picture(24, 12.4, 0.2)[:2] if picture == "two" else three_regions()
+    m = codec.quantize(vectorize(rgb, labels, search=False).model)
     for scale in (1.0, 3.7, 8.0):
         W, H = round(m.width * scale), round(m.height * scale)
-        from tpsv.geometry import outline
-
         # each region filled on its own: every pixel covered exactly once
         counts = np.zeros((H, W), np.int32)
         for reg in m.regions:
             counts += outline._fill_polys((H, W), reg.outline, scale=(W / m.width, H / m.height))
         assert np.count_nonzero(counts != 1) == 0, scale
+    # both sides of a border have the same vertices, so the file stores it once
+    polys = [np.rint(p * 8).astype(np.int32) for r in m.regions for p in r.outline]
+    on_other = 0
+    for i, p in enumerate(polys):
+        others = {tuple(v) for j, q in enumerate(polys) if j != i for v in q}
+        on_other += sum(tuple(v) in others for v in p)
+    assert on_other >= 0.6 * sum(len(p) for p in polys)
+    from tpsv.codec import chains
+
+    chain_list, refs = chains.decompose(polys)
+    used = np.bincount([r >> 1 for rs in refs for r in rs], minlength=len(chain_list))
+    # one border (two regions) or three (around the junction), each a chain read by both sides
+    assert np.count_nonzero(used == 2) >= (1 if picture == "two" else 3)
+    assert sum(len(c) for c in chain_list) < sum(len(p) for p in polys)
 
 
 def test_coverage_adds_up_to_one_across_a_border():

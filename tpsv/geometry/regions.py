@@ -50,14 +50,16 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
     n = int(comp.max()) + 1
     regions: list[Region] = []
     slices = ndimage.find_objects(comp + 1, max_label=n)
-    reading = subpixel.BorderReading(comp, rgb) if rgb is not None else None
-    for i in range(n):
+    present = [i for i in range(n) if slices[i] is not None]
+    fitted = [None] * len(present)
+    if rgb is not None:
+        # all at once: a border between two regions is simplified once, for both
+        fitted = subpixel.fitted_outlines(subpixel.BorderReading(comp, rgb), comp, present,
+                                          [slices[i] for i in present])
+    for i, polys in zip(present, fitted):
         sl = slices[i]
-        if sl is None:
-            continue
         mask = comp == i
         label = int(np.bincount(labels[sl][mask[sl]].ravel()).argmax())
-        polys = subpixel.fitted_outline(reading, comp, i, mask) if reading is not None else None
         if polys is None:
             polys = outline.trace_outline(mask)
         regions.append(Region(label=label, outline=polys, patch=patch.build_patch(mask, polys)))

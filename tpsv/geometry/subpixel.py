@@ -20,9 +20,14 @@ outline:
   edges on straight runs and cuts staircases into smooth diagonals.
 
 Between two regions ``m_A + m_B = 1`` on every border pixel (both readings
-and both smoothed masks add up to 1), so their outlines are the same curve
-and neither a gap nor an overlap opens between them; at junctions of three
-regions small gaps remain, which the renderer fills as it always has.
+and both smoothed masks add up to 1), so their contours pass through the same
+points. All regions are outlined together (:func:`fitted_outlines`): each
+border between two regions is simplified once and both sides keep the same
+vertices, so the outlines are one curve (stored once in the file,
+``tpsv.codec.chains``), and where three or more regions meet, the short runs
+where their contours part are closed into one junction point that all of
+them share. Neither a gap nor an overlap opens between regions at any scale
+(a region that falls back to its traced outline, below, is the exception).
 
 The curve is simplified by Ramer-Douglas-Peucker at :data:`TOLERANCE` px
 where the colours are trusted, easing to :data:`LOOSE_TOLERANCE` px where
@@ -51,6 +56,8 @@ TOLERANCE = 0.06
 GRID = 8
 #: RDP tolerance where they cannot (low contrast, texture): the label map's own precision.
 LOOSE_TOLERANCE = 0.5
+#: Runs of a contour of their own shorter than this (px) are junctions of three or more regions.
+JUNCTION = 2.0
 
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
@@ -165,33 +172,15 @@ class BorderReading:
         return np.where(border_near, m, sub.astype(np.float64))
 
 
-def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: np.ndarray,
-                   tolerance: float = TOLERANCE) -> list[np.ndarray] | None:
-    """Sub-pixel outline of ``region`` (outer polygon first, then holes), or None when it would lose the region.
-
-    Parameters
-    ----------
-    reading : BorderReading
-    comp : ndarray (H, W) int
-        Region of every pixel.
-    region : int
-    mask : ndarray (H, W) bool
-        ``comp == region``.
-    tolerance : float
-        RDP tolerance, px.
-
-    Returns
-    -------
-    list of ndarray (k, 2) float64, or None
-    """
+def _contours(reading: BorderReading, comp: np.ndarray, region: int,
+              box: tuple[slice, slice]) -> list[np.ndarray] | None:
+    """The level-0.5 contours of ``region``'s field, unsimplified: outer polygon (CCW) first, then holes (CW)."""
     import cv2
     from skimage.measure import find_contours
 
     H, W = comp.shape
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    r0, r1 = max(int(rows[0]) - 2, 0), min(int(rows[-1]) + 3, H)
-    c0, c1 = max(int(cols[0]) - 2, 0), min(int(cols[-1]) + 3, W)
+    r0, r1 = max(box[0].start - 2, 0), min(box[0].stop + 2, H)
+    c0, c1 = max(box[1].start - 2, 0), min(box[1].stop + 2, W)
     m = reading.field(comp, region, (slice(r0, r1), slice(c0, c1)))
     # beyond the image's frame the field carries on as it is at the frame (the
     # frame is no border: contours cross it straight and are cut there), and
@@ -233,36 +222,186 @@ def fitted_outline(reading: BorderReading, comp: np.ndarray, region: int, mask: 
             continue
         if cv2.pointPolygonTest(ocv, (float(p[0, 0]), float(p[0, 1])), False) > 0:
             holes.append(p if outline.signed_area(p) < 0 else p[::-1])
-    # where the colours tell where the border is, keep it to ``tolerance``; where
-    # only the smoothed mask does, the label map's own precision (half a pixel) is all there is
-    near_trust = reading.near_trust
+    return [outer] + holes
+
+
+def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int, H: int) -> np.ndarray:
+    """RDP tolerance of every contour point: ``tolerance`` where the colours tell, the label map's half pixel where not."""
+    cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
+    cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
+    tol = tolerance + (LOOSE_TOLERANCE - tolerance) * (1.0 - reading.near_trust[cy, cx])
+    # where a border meets the image's frame, and the frame's corners, stay where they are
+    fx = (p[:, 0] == 0.0) | (p[:, 0] == W)
+    fy = (p[:, 1] == 0.0) | (p[:, 1] == H)
+    frame = fx | fy
+    return np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
+
+
+def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
+                     H: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Where three or more regions meet, all their contours through one point.
+
+    Between two regions the contours coincide; where a third one is near,
+    each region's contour leaves the shared curves for a short run of its own
+    (the fields no longer add up to 1), and the runs of the regions around a
+    junction leave a sliver uncovered or covered twice. Every such run,
+    shorter than :data:`JUNCTION` px and off the image's frame, is replaced by
+    one point, the mean of the runs' ends around that junction, that all the
+    regions there share.
+    """
+    from ..codec import chains
+
+    keys = [np.rint(p * 2**20).astype(np.int64) for p in polys]
+    part = chains.partners(keys)
+    sizes = [len(p) for p in polys]
+    cuts = chains.cuts(part, sizes)
+    parent: dict = {}
+
+    def find(k):
+        while parent.setdefault(k, k) != k:
+            k = parent[k]
+        return k
+
+    runs = []
+    for i, p in enumerate(polys):
+        n = sizes[i]
+        c = cuts[i].tolist()
+        if len(c) < 2:
+            continue
+        for a, b in zip(c, c[1:] + [n]):
+            run = np.arange(a, b + 1) % n
+            pts = p[run]
+            if part[i][a, 0] >= 0 or np.hypot(*np.diff(pts, axis=0).T).sum() > JUNCTION:
+                continue
+            if (pts == 0.0).any() or (pts[:, 0] == W).any() or (pts[:, 1] == H).any():
+                continue
+            ka, kb = tuple(keys[i][run[0]]), tuple(keys[i][run[-1]])
+            parent[find(ka)] = find(kb)
+            runs.append((i, run))
+    if not runs:
+        return polys, tols
+    where: dict = {}
+    for i, p in enumerate(polys):
+        for j, k in enumerate(map(tuple, keys[i])):
+            if k in parent:
+                where.setdefault(find(k), []).append(p[j])
+    centre = {root: np.mean(pts, axis=0) for root, pts in where.items()}
+    drop = [np.zeros(n, bool) for n in sizes]
+    for i, run in runs:
+        drop[i][run[1:-1]] = True
+    out_p, out_t = [], []
+    for i, p in enumerate(polys):
+        q = p.copy()
+        at: dict = {}
+        for j, k in enumerate(map(tuple, keys[i])):
+            if k in parent:
+                q[j] = centre[find(k)]
+                at.setdefault(find(k), []).append(j)
+        n = sizes[i]
+        for js in at.values():
+            # the contour passes the junction twice: what lies between (the shorter way round) is a loop
+            a, b = js[0], js[-1]
+            if b - a > 1 and b - a <= n // 2:
+                drop[i][a + 1:b] = True
+            elif b - a > n // 2:
+                drop[i][b + 1:] = True
+                drop[i][:a] = True
+        keep = ~drop[i]
+        q, t = q[keep], tols[i][keep]
+        # a run's two ends became one point
+        step = np.any(q != np.roll(q, 1, axis=0), axis=1)
+        if step.any():
+            q, t = q[step], t[step]
+        out_p.append(q)
+        out_t.append(t)
+    return out_p, out_t
+
+
+def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H: int) -> list[np.ndarray]:
+    """Ramer-Douglas-Peucker of all contours at once, a border between two regions once for both.
+
+    Two regions' contours along their common border pass through the same
+    points (their fields add up to 1 there), in opposite directions. Each
+    such run is simplified once and both sides keep the same points, so the
+    outlines stay one curve (and the file stores it once, ``tpsv.codec.chains``).
+    """
+    from ..codec import chains
+
+    polys, tols = _close_junctions(polys, tols, W, H)
+    # the same point on both sides up to the last bits of the contour interpolation
+    keys = [np.rint(p * 2**20).astype(np.int64) for p in polys]
+    part = chains.partners(keys)
+    sizes = [len(p) for p in polys]
+    cuts = chains.cuts(part, sizes)
+    keep = [np.zeros(n, bool) for n in sizes]
+    done = [np.zeros(n, bool) for n in sizes]
+    for i, (p, tol) in enumerate(zip(polys, tols)):
+        n = sizes[i]
+        c = cuts[i].tolist()
+        for a, b in zip(c, c[1:] + [n]):
+            if done[i][a]:
+                continue
+            run = np.arange(a, b + 1)
+            kept = run[_rdp_open(p[run % n], tol[run % n])]
+            keep[i][kept % n] = True
+            q, j = (int(v) for v in part[i][b - 1])
+            if q >= 0:
+                # the twin run, in contour q, goes from our vertex b (its vertex j) back to our vertex a
+                keep[q][(j + b - kept) % sizes[q]] = True
+                done[q][j] = True
+    return [p[k] for p, k in zip(polys, keep)]
+
+
+def _finish(polys: list[np.ndarray], comp: np.ndarray, region: int, box: tuple[slice, slice]) -> list[np.ndarray] | None:
+    """Simplified contours on the file grid, or None when they would lose the region."""
     out = []
-    for i, p in enumerate([outer] + holes):
-        cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
-        cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
-        tol = tolerance + (LOOSE_TOLERANCE - tolerance) * (1.0 - near_trust[cy, cx])
-        # where a border meets the image's frame, and the frame's corners, stay where they are
-        fx = (p[:, 0] == 0.0) | (p[:, 0] == W)
-        fy = (p[:, 1] == 0.0) | (p[:, 1] == H)
-        frame = fx | fy
-        tol = np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
+    for i, p in enumerate(polys):
         # on the file's grid already: the encoder's scale-1 maps are then the decoded file's
-        s = np.round(simplify_closed(p, tol) * GRID) / GRID
+        s = np.round(p * GRID) / GRID
         s = s[np.any(s != np.roll(s, 1, axis=0), axis=1)]
         a = outline.signed_area(s)
         if len(s) < 3 or (a <= 0 if i == 0 else a >= 0):
             if i == 0:
                 return None
             continue
-        out.append(s)
+        out.append(np.ascontiguousarray(s, np.float64))
     # the fitted outline must still hold the region (pixel centres, as the renderer samples them)
-    sub = mask[r0:r1, c0:c1]
-    got = outline._fill_polys(sub.shape, out, offset=(c0, r0)).astype(bool)
+    sub = comp[box] == region
+    got = outline._fill_polys(sub.shape, out, offset=(box[1].start, box[0].start)).astype(bool)
     n = int(sub.sum())
     lost = int(np.count_nonzero(sub & ~got))
     if not got[sub].any() or lost > 0.25 * n + 1:
         return None
-    return [np.ascontiguousarray(p, np.float64) for p in out]
+    return out
+
+
+def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int],
+                    boxes: list[tuple[slice, slice]], tolerance: float = TOLERANCE) -> list[list[np.ndarray] | None]:
+    """Sub-pixel outlines of ``regions`` (outer polygon first, then holes; None where it would lose the region).
+
+    Parameters
+    ----------
+    reading : BorderReading
+    comp : ndarray (H, W) int
+        Region of every pixel.
+    regions : list of int
+        Regions to outline (values of ``comp``).
+    boxes : list of (slice, slice)
+        Bounding box of each region's pixels (rows, columns).
+    tolerance : float
+        RDP tolerance where the colours tell where the border is, px.
+
+    Returns
+    -------
+    list (one per region) of list of ndarray (k, 2) float64, or None
+    """
+    H, W = comp.shape
+    raw = [_contours(reading, comp, r, box) for r, box in zip(regions, boxes)]
+    flat = [p for polys in raw if polys for p in polys]
+    tols = [_tolerances(reading, p, tolerance, W, H) for p in flat]
+    simple = iter(_simplify_together(flat, tols, W, H))
+    return [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
+            for polys, r, box in zip(raw, regions, boxes)]
 
 
 def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
@@ -311,5 +450,5 @@ def simplify_closed(poly: np.ndarray, tol) -> np.ndarray:
     return p[np.concatenate([first, second])]
 
 
-__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outline",
+__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines",
            "simplify_closed"]
