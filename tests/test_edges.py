@@ -253,3 +253,34 @@ def test_hostile_outlines_render_with_bounded_border_work():
     m.regions[0].outline = [few] + list(m.regions[0].outline[1:])
     out = render(m, scale=8)
     assert np.isfinite(out).all() and out.shape == (128, 128, 3)
+
+
+def test_an_affine_colour_field_is_reproduced_at_any_scale():
+    """Smooth fills stay smooth: features of an affine Lab field render it to < 0.5/255 at scales 1 and 4.
+
+    (The model as built, before the file's colour quantisation: its steps are
+    the rate control's business.)
+    """
+    from conftest import rect_patch
+
+    from tpsv.color import lab_to_srgb
+    from tpsv.model import Features, Model, Params, Region
+
+    def field(x, y):
+        return np.stack([30 + 1.2 * x + 0.6 * y, -20 + 0.9 * x - 0.4 * y, 25 - 0.7 * x + 0.8 * y], -1)
+
+    size, n = 32, 12
+    s, t = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    st = np.stack([s.ravel(), t.ravel()], 1)
+    frame = np.array([[0.0, 0], [size, 0], [size, size], [0, size]])
+    m = Model(width=size, height=size,
+              regions=[Region(label=0, outline=[frame], patch=rect_patch(0, 0, size, size, M=4, N=4))],
+              features=Features(region=np.zeros(n * n, np.int32), st=st,
+                                lab=field(st[:, 0] * size, st[:, 1] * size).astype(np.float32),
+                                kind=np.zeros(n * n, np.uint8), pair=np.full(n * n, -1, np.int32)),
+              params=Params(smoothing=0.0))
+    for scale in (1, 4):
+        out = render(m, scale=scale)
+        yy, xx = (np.mgrid[0:size * scale, 0:size * scale] + 0.5) / scale
+        ref = lab_to_srgb(field(xx, yy).astype(np.float32))
+        assert np.abs(out - ref).max() < 0.5 / 255, scale
