@@ -242,7 +242,7 @@ def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int,
 def _free_runs(polys: list[np.ndarray], W: int, H: int):
     """Keys of every point, and every run of a contour that no other contour shares, off the frame.
 
-    Yields ``(keys, [(polygon, run indices), ...])``.
+    Returns ``(keys, [(polygon, run indices), ...])``.
     """
     from ..codec import chains
 
@@ -334,12 +334,8 @@ def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
     coming into the junction cross (the mean of the runs' ends when they are
     near parallel).
     """
-    from ..codec import chains
-
-    keys = [np.rint(p * 2**20).astype(np.int64) for p in polys]
-    part = chains.partners(keys)
+    keys, free = _free_runs(polys, W, H)
     sizes = [len(p) for p in polys]
-    cuts = chains.cuts(part, sizes)
     parent: dict = {}
 
     def find(k):
@@ -348,21 +344,12 @@ def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
         return k
 
     runs = []
-    for i, p in enumerate(polys):
-        n = sizes[i]
-        c = cuts[i].tolist()
-        if len(c) < 2:
+    for i, run in free:
+        if np.hypot(*np.diff(polys[i][run], axis=0).T).sum() > JUNCTION:
             continue
-        for a, b in zip(c, c[1:] + [n]):
-            run = np.arange(a, b + 1) % n
-            pts = p[run]
-            if part[i][a, 0] >= 0 or np.hypot(*np.diff(pts, axis=0).T).sum() > JUNCTION:
-                continue
-            if (pts == 0.0).any() or (pts[:, 0] == W).any() or (pts[:, 1] == H).any():
-                continue
-            ka, kb = tuple(keys[i][run[0]]), tuple(keys[i][run[-1]])
-            parent[find(ka)] = find(kb)
-            runs.append((i, run))
+        ka, kb = tuple(keys[i][run[0]]), tuple(keys[i][run[-1]])
+        parent[find(ka)] = find(kb)
+        runs.append((i, run))
     if not runs:
         return polys, tols
     where: dict = {}
