@@ -65,7 +65,27 @@ def edges() -> None:
     write_image(IMG / "edges-photo-8x.png", side_by_side([photo[y0:y0 + h, x0:x0 + w], bic, big], height=256))
 
 
+def soft_edges() -> None:
+    """8x around chelsea's eye: bicubic, every border sharp, the fitted edge widths."""
+    import dataclasses
+
+    from tpsv.bench import baseline
+    from tpsv.image import read_labels
+
+    photo = read_image(ROOT / "samples" / "chelsea.png")
+    lab = read_labels(ROOT / "samples" / "chelsea-labels.png")
+    model = vectorize(photo, lab, iterations=8, seed=0).model
+    y0, x0, h, w = 60, 150, 60, 60
+    crop = (slice(8 * y0, 8 * (y0 + h)), slice(8 * x0, 8 * (x0 + w)))
+    soft = render(model, scale=8)[crop]
+    sharp = render(dataclasses.replace(model, blur=np.zeros((0, 3))), scale=8)[crop]
+    bic = baseline.upscale(np.ascontiguousarray(photo[y0:y0 + h, x0:x0 + w]), 8, "bicubic")
+    write_image(IMG / "edges-soft-8x.png", side_by_side([bic, sharp, soft], height=300))
+    print("edges-soft-8x: edge widths", model.blur[:, 2].tolist())
+
+
 if __name__ == "__main__":
     IMG.mkdir(parents=True, exist_ok=True)
     hero()
     edges()
+    soft_edges()

@@ -164,6 +164,7 @@ def assert_models_identical(a: Model, b: Model) -> None:
         assert_arrays_identical(ra.patch.ctrl, rb.patch.ctrl, f"region {r} ctrl")
     for name in ("region", "st", "lab", "kind", "pair"):
         assert_arrays_identical(getattr(a.features, name), getattr(b.features, name), name)
+    assert_arrays_identical(a.blur, b.blur, "blur")
 
 
 # ------------------------------------------------------------------ file surgery
@@ -1006,3 +1007,64 @@ def test_more_holes_than_regions_is_refused():
     m.regions[0].outline = list(m.regions[0].outline) + [square(1.0 + 0.01 * i, 1.0, 0.5) for i in range(len(m.regions))]
     with pytest.raises(ValueError, match="at most one per region"):
         codec.encode(m)
+
+
+# ------------------------------------------------------------------ edge widths (issue 10)
+
+
+def blurred_hand_model() -> Model:
+    m = hand_model()
+    m.blur = np.array([[0, 2, 1.3], [0, 1, 0.52], [1, 2, 0.01]])
+    return m
+
+
+def test_edge_widths_round_trip_on_the_sixteenth_pixel():
+    m = blurred_hand_model()
+    q = codec.quantize(m)
+    # sorted by pair, on the 1/16 px grid, zero widths (0.01 px rounds to 0) dropped
+    assert q.blur.tolist() == [[0.0, 1.0, 0.5], [0.0, 2.0, 1.3125]]
+    data = codec.encode(m)
+    assert_models_identical(codec.decode(data), q)
+    assert codec.encode(codec.decode(data)) == data
+
+
+@pytest.mark.parametrize("blur, match", [
+    ([[1, 1, 1.0]], "a < b"),
+    ([[0, 3, 1.0]], "a < b < 3"),
+    ([[0, 1, -1.0]], "sigma"),
+    ([[0, 1, 16.0]], "sigma"),
+    ([[0, 1, np.nan]], "non-finite"),
+    ([[0, 1, 1.0], [0, 1, 2.0]], "listed twice"),
+    ([[0.5, 1, 1.0]], "integers"),
+])
+def test_bad_edge_widths_are_refused_by_the_encoder(blur, match):
+    m = hand_model()
+    m.blur = np.array(blur, np.float64)
+    with pytest.raises(ValueError, match=match):
+        codec.encode(m)
+
+
+def test_hostile_edge_widths_are_refused_in_one_line():
+    data = codec.encode(blurred_hand_model())
+    base = msgpack.unpackb(raw_sections(data)[1])
+
+    def blur_bin(rows):
+        rows = np.array(rows, np.int64).reshape(-1, 3)
+        return (sections.to_planes(rows[:, 0], 4) + sections.to_planes(rows[:, 1], 4)
+                + rows[:, 2].astype(np.uint8).tobytes())
+
+    cases = [
+        ({"blurs": 3}, "blur has 18 bytes, expected 27"),
+        ({"blurs": 10**6}, "not in 0.."),
+        ({"blur": blur_bin([[0, 2, 21], [0, 1, 8]])}, "not in increasing order"),
+        ({"blur": blur_bin([[1, 1, 8], [1, 2, 21]])}, "is not a < b < 3"),
+        ({"blur": blur_bin([[0, 1, 0], [0, 2, 21]])}, "width 0 not in 1..255"),
+        ({"blur": blur_bin([[0, 1, 8], [0, 7, 21]])}, "is not a < b < 3"),
+    ]
+    for change, match in cases:
+        reject(assemble(data, {"regions": pack({**base, **change})}), match)
+
+
+def test_version_1_files_have_sharp_borders():
+    for path in VERSION_1:
+        assert codec.decode(path.read_bytes()).blur.shape == (0, 3)

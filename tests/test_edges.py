@@ -318,3 +318,66 @@ def test_random_blobs_tile_the_picture(seed):
     for r in regions:
         counts += outline._fill_polys(counts.shape, [np.round(p * 8) / 8 for p in r.outline], scale=(4, 4))
     assert np.count_nonzero(counts != 1) <= 20
+
+
+def blurred_edge(size: int, x0: float, sigma: float, density: int = 16, scale: int = 1):
+    """Left of ``x = x0`` colour A, right B, the step blurred by a Gaussian of ``sigma`` px; box-filtered pixels.
+
+    ``scale`` > 1 draws the same scene ``scale`` times larger (the analytic magnified picture).
+    """
+    from scipy.special import erf
+
+    n = size * scale
+    xx = (np.arange(n * density) + 0.5) / density / scale
+    s = x0 - xx
+    step = 0.5 + 0.5 * erf(s / (np.sqrt(2) * sigma)) if sigma > 0 else (s > 0).astype(float)
+    cover = np.broadcast_to(step.reshape(n, density).mean(axis=1), (n, n))
+    rgb = cover[..., None] * A + (1 - cover[..., None]) * B
+    return rgb.astype(np.float32), (cover < 0.5).astype(np.int32), cover
+
+
+@pytest.mark.parametrize("sigma, tolerance", [(0.0, 0.0), (1.0, 0.15), (2.0, 0.3)])
+def test_edge_width_is_read_from_the_image(sigma, tolerance):
+    """A step blurred by sigma gets sigma as its border's edge width (a sharp one none)."""
+    from tpsv.encode.vectorize import build_geometry
+
+    rgb, labels, _ = blurred_edge(32, 15.3, sigma)
+    g = build_geometry(labels, rgb)
+    if sigma == 0:
+        assert g.blur.shape == (0, 3)
+    else:
+        assert g.blur.shape == (1, 3) and tuple(g.blur[0, :2]) == (0, 1)
+        assert abs(g.blur[0, 2] - sigma) <= tolerance
+
+
+def test_a_blurred_border_renders_the_blurred_step_at_any_scale():
+    """A border with an edge width renders, at any scale, the blurred step of the scene, in bands as in one piece."""
+    import dataclasses
+
+    from tpsv.color import srgb_to_lab
+    from tpsv.image import to_uint8
+
+    size, sigma = 32, 1.0
+    rgb, labels, _ = blurred_edge(size, 15.25, 0.0)
+    sharp = vectorize(rgb, labels, search=False).model
+    # flat fills, exactly A and B: what is left to see is the border's coverage
+    lab = np.where((sharp.features.region == 0)[:, None], srgb_to_lab(A[None])[0], srgb_to_lab(B[None])[0])
+    sharp = dataclasses.replace(sharp, features=dataclasses.replace(sharp.features, lab=lab.astype(np.float32)))
+    m = dataclasses.replace(sharp, blur=np.array([[0.0, 1.0, sigma]]))
+    left = next(r for r in m.regions if r.label == 0).outline[0]
+    x0 = left[:, 0].max()  # the fitted border, straight down from (x0, 0) to (x0, size)
+    assert [x0, 0.0] in left.tolist() and [x0, float(size)] in left.tolist()
+
+    def share(img):
+        return ((img - B) @ (A - B)) / ((A - B) @ (A - B))
+
+    for scale in (1, 3, 8):
+        t = share(render(m, scale=scale))
+        _, _, step = blurred_edge(size, x0, sigma, density=4, scale=scale)
+        # the box filter of the blurred step
+        assert np.abs(t - step).max() < 0.01, scale
+    # without its width the same border is one output pixel wide
+    t = share(render(sharp, scale=8))
+    assert np.median(np.count_nonzero((t > 0.05) & (t < 0.95), axis=1)[32:224]) <= 2
+    got = np.concatenate([r for _, r in render_bands(m, scale=8, max_pixels=size * 8 * 5)])
+    assert np.array_equal(got, to_uint8(render(m, scale=8)))

@@ -227,6 +227,11 @@ class Model:
         quantised where the format leaves a choice (``st_bits``), so that
         encoding the model again gives the same file. Empty for a new model;
         not part of the image (ignored by ``==``).
+    blur : ndarray, shape (n, 3), float64
+        Edge width of region borders: rows ``(a, b, sigma)``, regions ``a < b``
+        sorted, ``sigma`` the standard deviation (source px) of the Gaussian
+        that blurs the step between them (a defocused edge stays soft at any
+        scale). Borders not listed are sharp.
     """
 
     width: int
@@ -235,3 +240,4 @@ class Model:
     features: Features
     params: Params = field(default_factory=Params)
     encoding: dict = field(default_factory=dict, compare=False, repr=False)
+    blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), compare=False, repr=False)

@@ -328,7 +328,7 @@ def mutate_section(case: Case, data: bytes, rng: random.Random) -> None:
 def _quantized_ops(q: quant.Quantized, rng: random.Random, ops: list) -> quant.Quantized:
     n, r = q.st.shape[0], len(q.labels)
     op = rng.choice(("pair", "kind", "st", "st_bits", "lab", "grid", "verts", "polys", "label", "param",
-                     "counts", "xy"))
+                     "counts", "xy", "blur"))
     ops.append(op)
     if op == "pair" and n:
         pair = q.pair.copy()
@@ -386,6 +386,13 @@ def _quantized_ops(q: quant.Quantized, rng: random.Random, ops: list) -> quant.Q
         xy = q.xy.copy()
         xy[rng.randrange(xy.shape[0]), rng.randrange(2)] = rng.choice((2**31 - 1, -(2**31), 0))
         return dataclasses.replace(q, xy=xy)
+    if op == "blur":
+        # a pair out of range or order, a width of 0 or 255, a pair listed twice, or many pairs
+        rows = [(rng.randrange(-1, r + 2), rng.randrange(-1, r + 2), rng.choice((0, 1, 16, 255)))
+                for _ in range(rng.choice((1, 2, 3, 64)))]
+        blur = np.array(rows, np.int64).clip(0, 2**32 - 1).reshape(-1, 3)
+        blur[:, 2] = blur[:, 2].clip(0, 255)
+        return dataclasses.replace(q, blur=blur)
     return q
 
 

@@ -32,6 +32,8 @@ def summary(data: bytes) -> dict:
         "bpp": 8.0 * len(data) / (model.width * model.height),
         "sections": codec.section_sizes(data),
         "grids": [list(r.patch.shape) for r in model.regions],
+        # soft borders: (region a, region b, edge width in px); the others are sharp
+        "edge_widths": [[int(a), int(b), float(w)] for a, b, w in model.blur],
         "params": {
             "t_canny": p.t_canny,
             "t_super": p.t_super,
@@ -67,6 +69,11 @@ def info(path: str, as_json: bool) -> None:
     click.echo(f"{display(path)}: {s['width']}x{s['height']} px, {s['bytes']} bytes ({s['bpp']:.3f} bpp)")
     click.echo(f"  regions   {s['regions']}  (control grids {grids})")
     click.echo(f"  features  {s['features']}  ({s['curvilinear']} curvilinear, {s['gradation']} gradation)")
+    widths = [w for _, _, w in s["edge_widths"]]
+    if widths:
+        click.echo(f"  borders   {len(widths)} soft (edge width {min(widths):g}-{max(widths):g} px), the others sharp")
+    else:
+        click.echo("  borders   all sharp")
     click.echo("  sections  " + ", ".join(f"{k} {v} B" for k, v in s["sections"].items()))
     click.echo("  params    " + _pairs(params))
     if extra:

@@ -137,6 +137,7 @@ def raw_size_bounds(h: Header) -> tuple[int, int, int]:
         # chains (K <= V): count, vertices per chain, references per polygon,
         # references (at most V), and at most V + K vertices of x, y
         regions += 9 + 4 * h.vertices + 4 * h.polygons + 4 * h.vertices + 16 * h.vertices
+        regions += 9 + 9 * h.vertices  # edge widths: count, then at most V pairs of 9 bytes
     else:
         regions += 4 * h.polygons + 8 * h.vertices  # vertices per polygon, x, y as 32-bit
     features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features

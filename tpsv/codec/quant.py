@@ -23,6 +23,9 @@ from . import layout
 OUTLINE_SCALE = 8
 #: Control vectors are stored in units of 1/CTRL_SCALE px.
 CTRL_SCALE = 16
+#: Edge widths are stored in units of 1/BLUR_SCALE px, at most MAX_BLUR of them.
+BLUR_SCALE = 16
+MAX_BLUR = 255
 #: S, T aim at this many steps per pixel across a patch as wide as the image.
 ST_STEPS_PER_PX = 16
 MIN_ST_BITS = 8
@@ -83,6 +86,9 @@ class Quantized:
         ``round(b / ab_step) + 128`` (steps from ``params``).
     kind : ndarray, shape (F,), uint8
     pair : ndarray, shape (F,), int64
+    blur : ndarray, shape (n, 3), int64
+        Edge widths: rows ``(a, b, s)``, regions ``a < b`` sorted, ``s =
+        round(16 sigma)`` in ``1..255`` (version 2; empty in version 1).
     """
 
     width: int
@@ -100,6 +106,7 @@ class Quantized:
     lab: np.ndarray
     kind: np.ndarray
     pair: np.ndarray
+    blur: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
 
 def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) -> int:
@@ -182,8 +189,31 @@ def from_model(model: Model) -> Quantized:
         width=width, height=height, params=params,
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
         xy=xy, ctrl=ctrl, feature_counts=counts, st_bits=st_bits, st=st, lab=lab,
-        kind=kind, pair=pair,
+        kind=kind, pair=pair, blur=_quantize_blur(getattr(model, "blur", None), len(regions)),
     )
+
+
+def _quantize_blur(blur, n_regions: int) -> np.ndarray:
+    """Edge widths as stored: ``(a, b, round(16 sigma))``, sorted, zero widths dropped."""
+    b = np.asarray(np.zeros((0, 3)) if blur is None else blur, np.float64)
+    if b.size == 0:
+        return np.zeros((0, 3), np.int64)
+    if b.ndim != 2 or b.shape[1] != 3:
+        raise ValueError(f"blur has shape {b.shape}, expected (n, 3)")
+    if not np.isfinite(b).all():
+        raise ValueError("blur: non-finite value")
+    ab = b[:, :2]
+    if np.any(ab != np.rint(ab)) or np.any(ab < 0) or np.any(ab >= n_regions) or np.any(ab[:, 0] >= ab[:, 1]):
+        raise ValueError(f"blur: region pairs must be integers a < b < {n_regions}")
+    s = np.rint(b[:, 2] * BLUR_SCALE)
+    if np.any(s < 0) or np.any(s > MAX_BLUR):
+        raise ValueError(f"blur: sigma must be in [0, {MAX_BLUR / BLUR_SCALE}] px")
+    q = np.column_stack([ab.astype(np.int64), s.astype(np.int64)])
+    q = q[q[:, 2] > 0]
+    q = q[np.lexsort((q[:, 1], q[:, 0]))]
+    if len(q) > 1 and np.any(np.all(q[1:, :2] == q[:-1, :2], axis=1)):
+        raise ValueError("blur: a region pair is listed twice")
+    return q
 
 
 def _as_int(value, name: str) -> int:
@@ -342,6 +372,7 @@ def validate(q: Quantized) -> None:
     _validate_params(q.params)
     layout.check_header_limits(_header(q))
     _validate_regions(q)
+    _validate_blur(q)
     _validate_features(q)
 
 
@@ -442,6 +473,25 @@ def _validate_regions(q: Quantized) -> None:
         )
 
 
+def _validate_blur(q: Quantized) -> None:
+    b = q.blur
+    if b.size == 0:
+        return
+    r = len(q.labels)
+    if len(b) > q.xy.shape[0]:
+        raise TpsvFormatError(f"blur: {len(b)} region pairs for {q.xy.shape[0]} outline vertices")
+    bad = np.flatnonzero((b[:, 0] >= b[:, 1]) | (b[:, 1] >= r) | (b[:, 0] < 0))
+    if bad.size:
+        raise TpsvFormatError(f"blur {bad[0]}: region pair ({b[bad[0], 0]}, {b[bad[0], 1]}) is not a < b < {r}")
+    bad = np.flatnonzero((b[:, 2] < 1) | (b[:, 2] > MAX_BLUR))
+    if bad.size:
+        raise TpsvFormatError(f"blur {bad[0]}: width {b[bad[0], 2]} not in 1..{MAX_BLUR}")
+    key = b[:, 0] * r + b[:, 1]
+    bad = np.flatnonzero(key[1:] <= key[:-1])
+    if bad.size:
+        raise TpsvFormatError(f"blur {bad[0] + 1}: region pairs not in increasing order")
+
+
 def _validate_features(q: Quantized) -> None:
     n = q.st.shape[0]
     if int(q.feature_counts.sum()) != n:
@@ -503,6 +553,7 @@ def to_model(q: Quantized) -> Model:
         width=q.width, height=q.height, regions=_dequantize_regions(q),
         features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
         encoding={ST_BITS_KEY: q.st_bits, ST_BITS_FOR_KEY: (q.width, q.height, p["st_steps"])},
+        blur=np.column_stack([q.blur[:, :2].astype(np.float64), q.blur[:, 2] / BLUR_SCALE]).reshape(-1, 3),
     )
 
 

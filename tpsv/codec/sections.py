@@ -36,7 +36,8 @@ GEOMETRY_LAG = 1
 
 #: Version 1 stored every polygon's vertices; version 2 stores chains (shared borders once).
 REGION_KEYS_V1 = ("label", "grid", "polys", "verts", "xy_shift", "xy", "ctrl")
-REGION_KEYS = ("label", "grid", "polys", "chains", "chain_verts", "refs", "ref", "xy_shift", "xy", "ctrl")
+REGION_KEYS = ("label", "grid", "polys", "chains", "chain_verts", "refs", "ref", "xy_shift", "xy", "ctrl", "blurs",
+               "blur")
 FEATURE_KEYS = ("st_bits", "count", "st", "lab_lag", "lab", "kind", "pair")
 PARAM_KEYS = tuple(PARAM_FIELDS) + ("extra",)
 
@@ -151,6 +152,8 @@ def pack_regions(q: Quantized) -> bytes:
             to_planes(delta_zigzag(xy[:, k].astype(np.int32), 4, GEOMETRY_LAG), 4) for k in range(2)
         ),
         "ctrl": to_planes(delta_zigzag(_ctrl_planar(q), 4, GEOMETRY_LAG), 4),
+        "blurs": int(len(q.blur)),
+        "blur": to_planes(q.blur[:, 0], 4) + to_planes(q.blur[:, 1], 4) + q.blur[:, 2].astype(np.uint8).tobytes(),
     })
 
 
@@ -332,9 +335,16 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
     ctrl = undelta_zigzag(
         from_planes(_expect_bin(obj, "ctrl", 4 * c, name), c, 4), 4, GEOMETRY_LAG
     )
+    blur = np.zeros((0, 3), np.int64)
+    if h.version >= 2:
+        # a listed pair shares a border, so there are fewer pairs than vertices
+        n = _expect_int(obj, "blurs", 0, v, name)
+        buf = _expect_bin(obj, "blur", 9 * n, name)
+        blur = np.column_stack([from_planes(buf[:4 * n], n, 4), from_planes(buf[4 * n:8 * n], n, 4),
+                                np.frombuffer(buf[8 * n:], np.uint8)]).astype(np.int64).reshape(-1, 3)
     return dict(
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
-        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid),
+        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid), blur=blur,
     )
 
 

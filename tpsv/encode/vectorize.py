@@ -86,6 +86,7 @@ import numpy as np
 from .. import codec, metrics, tps
 from ..errors import TpsvError
 from ..geometry import segment
+from ..geometry.edgewidth import edge_widths
 from ..geometry.regions import build_regions
 from ..model import Features, Model, Params, Region
 from ..render.pixelmap import PixelMap
@@ -158,11 +159,14 @@ class Geometry:
     st : ndarray (H, W, 2) float32, optional
         ``(S, T)`` of every pixel in its region's patch, as the renderer computes
         it at scale 1 (:meth:`pixel_st` fills it on first use).
+    blur : ndarray (n, 3) float64
+        Edge widths of the borders (``Model.blur``).
     """
 
     regions: list[Region]
     index: np.ndarray
     st: np.ndarray | None = None
+    blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _cache: dict = field(default_factory=dict, repr=False)
 
     def pixel_st(self, device: str = "cpu") -> np.ndarray:
@@ -201,7 +205,7 @@ class Geometry:
             from types import SimpleNamespace
 
             h, w = self.index.shape
-            shape = SimpleNamespace(regions=self.regions, width=w, height=h)  # Borders reads only these
+            shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur)  # Borders reads only these
             self._cache["borders"] = Borders(shape, w, h).mix(self.index)
         return self._cache["borders"]
 
@@ -280,15 +284,17 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     labels : ndarray (H, W) int
         Label map.
     rgb : ndarray (H, W, 3) float32, optional
-        The image: outlines fitted to its edges at sub-pixel precision
-        (without it: along the label map's pixel edges).
+        The image: outlines fitted to its edges at sub-pixel precision, and
+        the borders' edge widths read from it (without it: outlines along the
+        label map's pixel edges, sharp).
 
     Returns
     -------
     Geometry
     """
     regions, index = build_regions(labels, rgb)
-    return Geometry(regions=regions, index=index)
+    blur = edge_widths(rgb, regions, index) if rgb is not None else np.zeros((0, 3))
+    return Geometry(regions=regions, index=index, blur=blur)
 
 
 def start_thresholds(
@@ -368,7 +374,7 @@ def make_model(
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
-    model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params)
+    model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params, blur=geometry.blur)
     if fit and scheme_of(params) != "paper" and len(feats):
         model = codec.quantize(model)
         model, _ = fit_colors(model, target=geometry.fit_target(rgb, fit_sub), iterations=fit_iterations)

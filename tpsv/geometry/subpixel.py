@@ -85,6 +85,8 @@ class BorderReading:
     near_trust : ndarray (H, W) float64
         The largest ``trust`` in each pixel's 3 x 3 neighbourhood (what an
         outline point between pixels goes by).
+    contrast : ndarray (H, W) float64
+        ``|mu_A - mu_B|``, the colour step across the border (0 off the border).
     """
 
     def __init__(self, comp: np.ndarray, rgb: np.ndarray):
@@ -101,6 +103,7 @@ class BorderReading:
         self.across = np.full((H, W), -1, np.int32)
         self.alpha = np.ones((H, W))
         self.trust = np.zeros((H, W))
+        self.contrast = np.zeros((H, W))
         self.near_trust = self.trust
         ys, xs = np.nonzero(border)
         if ys.size == 0:
@@ -155,6 +158,7 @@ class BorderReading:
         contrast = np.sqrt(dd)
         texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
         self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
+        self.contrast[ys, xs] = contrast
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
 
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:

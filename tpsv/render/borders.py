@@ -2,23 +2,29 @@
 
 The region map gives every output pixel one region, sampled at its centre
 (:mod:`tpsv.render.pixelmap`), which alone draws a border as a staircase of
-whole pixels. Here every pixel that a border crosses gets its coverage
-instead: with ``d`` the distance (in output pixels) from the pixel centre to
-the nearest outline, the pixel's own region covers ``alpha = min(1, 0.5 + d)``
-of it and the region across the border the rest. That is the exact area
-coverage of a pixel by a straight border parallel to a pixel side (a box
-filter), so the coverages of two pixels facing each other across a border
-add up to 1; the colour across is that region's own TPS, evaluated a little
-beyond its outline (``(S, T)`` of the pixel in its patch). Borders with the
-image frame are not outlines anybody crosses: they stay sharp.
+whole pixels. Here every pixel near a border gets its coverage instead: with
+``d`` the distance (in output pixels) from the pixel centre to the nearest
+outline, the pixel's own region covers ``alpha = min(1, 0.5 + d)`` of it and
+the region across the border the rest. That is the exact area coverage of a
+pixel by a straight border parallel to a pixel side (a box filter), so the
+coverages of two pixels facing each other across a border add up to 1; the
+colour across is that region's own TPS, evaluated a little beyond its outline
+(``(S, T)`` of the pixel in its patch). Borders with the image frame are not
+outlines anybody crosses: they stay sharp.
+
+A border with an edge width (``Model.blur``: the Gaussian ``sigma`` of a
+defocused edge, source pixels) is a blurred step: ``alpha`` is the box
+filter of the step convolved with that Gaussian (``sigma`` times the scale,
+in output pixels), and pixels up to ``0.5 + 3 sigma`` output pixels from the
+border mix. A soft edge stays as soft, relative to the picture, at any scale;
+a sharp one stays one output pixel wide.
 
 Outlines are cut into pieces of at most :data:`PIECE_PX` output pixels
 (longer when an output would need more than :data:`MAX_PIECES`), whose
 midpoints go into a k-d tree; each border pixel measures its exact distance
-to the :data:`NEAREST` nearest pieces. The region across is the one found at
-the pixel's mirror image in that nearest outline (else its nearest
-4-neighbour of another region), so junctions of three regions mix the right
-pair.
+to the :data:`NEAREST` nearest pieces. The region across is the one found
+just beyond the nearest outline (else the pixel's nearest 8-neighbour of
+another region), so junctions of three regions mix the right pair.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import ndtr
 
 #: Longest outline piece, output pixels.
 PIECE_PX = 1.0
@@ -78,12 +85,32 @@ class Borders:
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
         k = np.array([self.kx, self.ky])
-        ends = [(np.asarray(p, np.float64) * k) for reg in model.regions for p in reg.outline if len(p) >= 2]
+        # edge widths in output pixels, looked up by the pair key a * R + b (a < b)
+        blur = np.asarray(getattr(model, "blur", np.zeros((0, 3))), np.float64).reshape(-1, 3)
+        blur = blur[blur[:, 2] > 0]
+        n = max(len(model.regions), 1)
+        order = np.argsort(blur[:, 0] * n + blur[:, 1], kind="stable")
+        self.n_regions = n
+        self.blur_keys = (blur[order, 0] * n + blur[order, 1]).astype(np.int64)
+        self.blur_sigma = blur[order, 2] * float(np.sqrt(self.kx * self.ky))
+        #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
+        self.reach_px = 0.5 + 3.0 * float(self.blur_sigma.max(initial=0.0))
+        self.halo = int(np.ceil(self.reach_px)) + 1
+        ends = [np.asarray(p, np.float64) for reg in model.regions for p in reg.outline if len(p) >= 2]
         if not ends:
             self.tree = None
             return
         a = np.concatenate(ends)
         b = np.concatenate([np.roll(p, -1, axis=0) for p in ends])
+        # runs along the image's frame are no border: a pixel near the frame measures to the real one
+        frame = np.zeros(len(a), bool)
+        for axis, size in ((0, model.width), (1, model.height)):
+            for edge in (0.0, float(size)):
+                frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
+        a, b = a[~frame] * k, b[~frame] * k
+        if not len(a):
+            self.tree = None
+            return
         seg = np.hypot(*(b - a).T)
         ok = np.isfinite(seg)
         a, b, seg = a[ok], b[ok], seg[ok]
@@ -108,9 +135,10 @@ class Borders:
             Region of every pixel of the band (``region_index`` rows).
         y0 : int
             Output row of ``index``'s first row.
-        halo : (row above, row below)
-            The region rows just outside the band (None at the frame's edge),
-            so that a band's border pixels are the whole frame's.
+        halo : (rows above, rows below)
+            Region rows just outside the band, ``(k, W)`` arrays of up to
+            :attr:`halo` rows (None at the frame's edge), so that a band's
+            border pixels are the whole frame's.
 
         Returns
         -------
@@ -120,58 +148,115 @@ class Borders:
             return BorderMix.none()
         h, W = index.shape
         up, down = halo
-        ext = np.vstack([index[:1] if up is None else up[None], index, index[-1:] if down is None else down[None]])
+        up = index[:1] if up is None else np.asarray(up).reshape(-1, W)
+        down = index[-1:] if down is None else np.asarray(down).reshape(-1, W)
+        top = up.shape[0]
+        ext = np.vstack([up, index, down])
         ext = np.hstack([ext[:, :1], ext, ext[:, -1:]])
-        own = ext[1:-1, 1:-1]
-        differs = np.zeros((h, W), bool)
+        inner = ext[:, 1:-1]
+        # pixels with an 8-neighbour of another region, over the band and its halo
+        differs = np.zeros(inner.shape, bool)
         for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
-            nb = ext[1 + dy:1 + dy + h, 1 + dx:1 + dx + W]
-            differs |= (nb != own) & (nb >= 0)
-        differs &= own >= 0
-        ys, xs = np.nonzero(differs)
-        if ys.size == 0:
+            nb = np.roll(np.roll(ext, -dy, axis=0), -dx, axis=1)[:, 1:-1]
+            differs |= (nb != inner) & (nb >= 0)
+        differs[0] = differs[-1] = False  # (rolled around)
+        differs &= inner >= 0
+        near = differs[top:top + h]
+        ys, xs = np.nonzero(near)
+        if self.reach_px > 1.0:
+            import cv2
+
+            # a blurred border reaches further: every pixel within reach of a border pixel
+            # (measured to fewer pieces: the far tail of a blurred step varies slowly)
+            dist = cv2.distanceTransform((~differs).astype(np.uint8), cv2.DIST_L2, 5)
+            far = (dist[top:top + h] <= self.reach_px + 1.0) & ~near & (index >= 0)
+            fy, fx = np.nonzero(far)
+        else:
+            fy = fx = np.zeros(0, np.int64)
+        own_map = index
+        if ys.size + fy.size == 0:
             return BorderMix.none()
-        p = np.column_stack([xs + 0.5, ys + y0 + 0.5])
-        k = min(NEAREST, self.tree.n)
-        _, near = self.tree.query(p, k=k)
+        p, f, dmin = self._nearest(np.column_stack([xs + 0.5, ys + y0 + 0.5]), NEAREST)
+        if fy.size:
+            pf, ff, df = self._nearest(np.column_stack([fx + 0.5, fy + y0 + 0.5]), 3)
+            p, f, dmin = np.vstack([p, pf]), np.vstack([f, ff]), np.concatenate([dmin, df])
+            ys, xs = np.concatenate([ys, fy]), np.concatenate([xs, fx])
+        keep = dmin < self.reach_px
+        if not keep.any():
+            return BorderMix.none()
+        p, f, dmin, ys, xs = p[keep], f[keep], dmin[keep], ys[keep], xs[keep]
+        mine = own_map[ys, xs]
+        other = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
+        ok = other >= 0
+        p, dmin, ys, xs, other, mine = p[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
+        alpha = self._coverage(dmin, self._sigma(mine, other))
+        mixed = alpha < 1.0 - 1e-4
+        p, alpha, ys, xs, other = p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed]
+        xy = np.column_stack([p[:, 0] / self.kx, p[:, 1] / self.ky])
+        return BorderMix(pixels=(ys * W + xs).astype(np.int32), other=other.astype(np.int32),
+                         alpha=alpha.astype(np.float32), xy=xy)
+
+    def _nearest(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(p, foot, distance)``: each point's foot on the nearest of its ``k`` nearest pieces (by midpoint)."""
+        k = min(k, self.tree.n)
+        if not len(p):
+            return p, p.copy(), np.zeros(0)
+        _, near = self.tree.query(p, k=k, workers=-1)
         near = near.reshape(len(p), k)
         a = self.a[near]  # (n, k, 2)
         d = self.d[near]
         w = p[:, None, :] - a
         t = np.clip((w * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
         foot = a + t[..., None] * d
-        dist = np.hypot(*(p[:, None, :] - foot).transpose(2, 0, 1))
+        off = p[:, None, :] - foot
+        dist = np.sqrt(off[..., 0] ** 2 + off[..., 1] ** 2)
         best = np.argmin(dist, axis=1)
         rows = np.arange(len(p))
-        dmin = dist[rows, best]
-        f = foot[rows, best]
-        keep = dmin < 0.5
-        if not keep.any():
-            return BorderMix.none()
-        p, f, dmin, ys, xs = p[keep], f[keep], dmin[keep], ys[keep], xs[keep]
-        other = self._across(ext, own[ys, xs], p, f, ys, xs, y0)
-        ok = other >= 0
-        p, dmin, ys, xs, other = p[ok], dmin[ok], ys[ok], xs[ok], other[ok]
-        xy = np.column_stack([p[:, 0] / self.kx, p[:, 1] / self.ky])
-        return BorderMix(pixels=(ys * W + xs).astype(np.int32), other=other.astype(np.int32),
-                         alpha=(0.5 + dmin).astype(np.float32), xy=xy)
+        return p, foot[rows, best], dist[rows, best]
 
-    def _across(self, ext, mine, p, f, ys, xs, y0):
-        """Region at each pixel's mirror image in its nearest outline, else the nearest 4-neighbour of another region."""
-        h, W = ext.shape[0] - 2, ext.shape[1] - 2
-        q = 2.0 * f - p
-        qx = np.clip(np.floor(q[:, 0]).astype(np.int64) - xs, -1, 1)
-        qy = np.clip(np.floor(q[:, 1]).astype(np.int64) - (ys + y0), -1, 1)
-        other = ext[1 + ys + qy, 1 + xs + qx]
+    def _sigma(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Edge width (output px) of the border between regions ``a`` and ``b`` (0: sharp)."""
+        if self.blur_keys.size == 0:
+            return np.zeros(a.shape)
+        key = np.minimum(a, b).astype(np.int64) * self.n_regions + np.maximum(a, b)
+        i = np.clip(np.searchsorted(self.blur_keys, key), 0, self.blur_keys.size - 1)
+        return np.where(self.blur_keys[i] == key, self.blur_sigma[i], 0.0)
+
+    @staticmethod
+    def _coverage(d: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        """Share of a pixel (centre ``d`` output px inside its region) that a step blurred by ``sigma`` leaves it.
+
+        The box filter of the blurred step: ``F(d + 1/2) - F(d - 1/2)`` with
+        ``F(x) = x Phi(x / sigma) + sigma phi(x / sigma)``; ``min(1, 0.5 + d)``
+        for a sharp step.
+        """
+        sharp = np.minimum(1.0, 0.5 + d)
+        s = np.maximum(sigma, 1e-6)
+
+        def F(x):
+            z = x / s
+            return x * ndtr(z) + s * np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+
+        return np.where(sigma > 1e-3, F(d + 0.5) - F(d - 0.5), sharp)
+
+    def _across(self, ext, top, mine, p, f, dist, ys, xs, y0):
+        """Region just beyond each pixel's nearest outline, else its nearest 8-neighbour of another region."""
+        H, W = ext.shape[0], ext.shape[1] - 2
+        # a little beyond the foot of the pixel's perpendicular (the mirror image for pixels on the outline)
+        away = (f - p) / np.maximum(dist, 1e-9)[:, None]
+        q = np.where((dist > 0.75)[:, None], f + 0.75 * away, 2.0 * f - p)
+        qx = np.clip(np.floor(q[:, 0]).astype(np.int64), -1, W)
+        qy = np.clip(np.floor(q[:, 1]).astype(np.int64) - y0 + top, 0, H - 1)
+        other = ext[qy, qx + 1]
         bad = (other == mine) | (other < 0)
         if bad.any():
-            # the mirror point fell in the pixel's own region (an outline corner): the
-            # 8-neighbour of another region whose centre is nearest the mirror point
+            # the point beyond fell in the pixel's own region (an outline corner): the
+            # 8-neighbour of another region whose centre is nearest that point
             ib = np.flatnonzero(bad)
             best = np.full(len(ib), np.inf)
             pick = np.full(len(ib), -1, np.int64)
             for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
-                r = ext[1 + ys[ib] + dy, 1 + xs[ib] + dx]
+                r = ext[np.clip(top + ys[ib] + dy, 0, H - 1), 1 + xs[ib] + dx]
                 c = np.column_stack([xs[ib] + dx + 0.5, ys[ib] + y0 + dy + 0.5])
                 dd = np.hypot(*(c - q[ib]).T)
                 take = (r != mine[ib]) & (r >= 0) & (dd < best)

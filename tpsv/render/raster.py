@@ -224,7 +224,9 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
         pm = maps.band(y0, y1)
         out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=threads, clamp=clamp)
         if borders is not None:
-            halo = (maps.index(y0 - 1, y0)[0] if y0 > 0 else None, maps.index(y1, y1 + 1)[0] if y1 < H else None)
+            hr = borders.halo
+            halo = (maps.index(max(0, y0 - hr), y0) if y0 > 0 else None,
+                    maps.index(y1, min(H, y1 + hr)) if y1 < H else None)
             _mix_borders(model, dk, out, borders.mix(pm.index, y0, halo), threads, clamp, maps.patch_set)
         del pm
         yield y0, out.numpy().reshape(y1 - y0, W, 3)
