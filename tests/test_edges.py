@@ -381,3 +381,24 @@ def test_a_blurred_border_renders_the_blurred_step_at_any_scale():
     assert np.median(np.count_nonzero((t > 0.05) & (t < 0.95), axis=1)[32:224]) <= 2
     got = np.concatenate([r for _, r in render_bands(m, scale=8, max_pixels=size * 8 * 5)])
     assert np.array_equal(got, to_uint8(render(m, scale=8)))
+
+
+def test_a_linear_gradient_comes_back_smooth():
+    """Smooth fills stay smooth through vectorize and the file: the colour steps go fine when they pay.
+
+    (With L 2 / ab 4 the finest choice, as before, this picture came back at
+    45.5 dB, mean error 0.98/255, 99th percentile 3.6/255; now 52.0 dB, 0.39/255,
+    for 35 more bytes.)
+    """
+    from tpsv import codec
+    from tpsv.color import lab_to_srgb
+
+    size = 48
+    yy, xx = np.mgrid[0:size, 0:size] + 0.5
+    lab = np.stack([40 + 0.5 * xx + 0.3 * yy, -10 + 0.4 * xx - 0.2 * yy, 20 - 0.3 * xx + 0.25 * yy], -1)
+    rgb = np.clip(lab_to_srgb(lab.astype(np.float32)), 0, 1).astype(np.float32)
+    res = vectorize(rgb, np.zeros((size, size), np.int32))
+    m = codec.decode(res.data)
+    assert (m.params.l_step, m.params.ab_step) == (1, 1)
+    err = np.abs(render(m) - rgb) * 255
+    assert err.mean() < 0.5 and np.percentile(err, 99) < 2.0
