@@ -173,7 +173,6 @@ class Borders:
             fy, fx = np.nonzero(far)
         else:
             fy = fx = np.zeros(0, np.int64)
-        own_map = index
         if ys.size + fy.size == 0:
             return BorderMix.none()
         p, f, dmin = self._nearest(np.column_stack([xs + 0.5, ys + y0 + 0.5]), NEAREST)
@@ -185,7 +184,7 @@ class Borders:
         if not keep.any():
             return BorderMix.none()
         p, f, dmin, ys, xs = p[keep], f[keep], dmin[keep], ys[keep], xs[keep]
-        mine = own_map[ys, xs]
+        mine = index[ys, xs]
         other = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
         ok = other >= 0
         p, dmin, ys, xs, other, mine = p[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
