@@ -240,4 +240,4 @@ class Model:
     features: Features
     params: Params = field(default_factory=Params)
     encoding: dict = field(default_factory=dict, compare=False, repr=False)
-    blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), compare=False, repr=False)
+    blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)

@@ -719,9 +719,9 @@ def vectorize(
         for the ``"tpsv"`` scheme; otherwise ``params``' steps are kept).
     outlines : {'fitted', 'traced'}
         Region outlines fitted to the image's edges at sub-pixel precision
-        (crisp at any scale), or traced along the label map's pixel edges
-        (smaller files: 370-2,600 bytes less on the samples, 0.0-0.9 dB
-        better at equal bytes at scale 1, staircase borders when magnified).
+        (crisp at any scale, soft where the photo's edge is), or traced along
+        the label map's pixel edges, sharp (staircase borders when magnified;
+        README, "Edges", for the figures at equal bytes).
 
     Returns
     -------

@@ -85,8 +85,6 @@ class BorderReading:
     near_trust : ndarray (H, W) float64
         The largest ``trust`` in each pixel's 3 x 3 neighbourhood (what an
         outline point between pixels goes by).
-    contrast : ndarray (H, W) float64
-        ``|mu_A - mu_B|``, the colour step across the border (0 off the border).
     """
 
     def __init__(self, comp: np.ndarray, rgb: np.ndarray):
@@ -103,7 +101,6 @@ class BorderReading:
         self.across = np.full((H, W), -1, np.int32)
         self.alpha = np.ones((H, W))
         self.trust = np.zeros((H, W))
-        self.contrast = np.zeros((H, W))
         self.near_trust = self.trust
         ys, xs = np.nonzero(border)
         if ys.size == 0:
@@ -158,7 +155,6 @@ class BorderReading:
         contrast = np.sqrt(dd)
         texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
         self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
-        self.contrast[ys, xs] = contrast
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
 
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:
@@ -243,6 +239,12 @@ def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int,
     return np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
 
 
+def _point_keys(polys: list[np.ndarray]) -> list[np.ndarray]:
+    """Integer keys of contour points: the same point on both sides of a border, up to the
+    last bits of the contour interpolation, gets the same key."""
+    return [np.rint(p * 2**20).astype(np.int64) for p in polys]
+
+
 def _free_runs(polys: list[np.ndarray], W: int, H: int):
     """Keys of every point, and every run of a contour that no other contour shares, off the frame.
 
@@ -250,7 +252,7 @@ def _free_runs(polys: list[np.ndarray], W: int, H: int):
     """
     from ..codec import chains
 
-    keys = [np.rint(p * 2**20).astype(np.int64) for p in polys]
+    keys = _point_keys(polys)
     part = chains.partners(keys)
     sizes = [len(p) for p in polys]
     cuts = chains.cuts(part, sizes)
@@ -425,7 +427,7 @@ def _meeting_point(segments: list[np.ndarray], fallback: np.ndarray) -> np.ndarr
     return x if np.hypot(*(x - fallback)) <= JUNCTION else fallback
 
 
-def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H: int) -> list[np.ndarray]:
+def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[np.ndarray]:
     """Ramer-Douglas-Peucker of all contours at once, a border between two regions once for both.
 
     Two regions' contours along their common border pass through the same
@@ -435,15 +437,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray], W: int, 
     """
     from ..codec import chains
 
-    # short stretches at junctions first (one point where the curves cross), then what is longer
-    polys, tols = _close_junctions(polys, tols, W, H)
-    for _ in range(8):
-        polys, tols, changed = _close_cycles(polys, tols, W, H)
-        if not changed:
-            break
-    # the same point on both sides up to the last bits of the contour interpolation
-    keys = [np.rint(p * 2**20).astype(np.int64) for p in polys]
-    part = chains.partners(keys)
+    part = chains.partners(_point_keys(polys))
     sizes = [len(p) for p in polys]
     cuts = chains.cuts(part, sizes)
     keep = [np.zeros(n, bool) for n in sizes]
@@ -512,7 +506,13 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
     raw = [_contours(reading, comp, r, box) for r, box in zip(regions, boxes)]
     flat = [p for polys in raw if polys for p in polys]
     tols = [_tolerances(reading, p, tolerance, W, H) for p in flat]
-    simple = iter(_simplify_together(flat, tols, W, H))
+    # short stretches at junctions first (one point where the curves cross), then what is longer
+    flat, tols = _close_junctions(flat, tols, W, H)
+    for _ in range(8):
+        flat, tols, changed = _close_cycles(flat, tols, W, H)
+        if not changed:
+            break
+    simple = iter(_simplify_together(flat, tols))
     return [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
             for polys, r, box in zip(raw, regions, boxes)]
 
@@ -543,25 +543,4 @@ def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
-def simplify_closed(poly: np.ndarray, tol) -> np.ndarray:
-    """Ramer-Douglas-Peucker of a closed polygon with a tolerance per point (px).
-
-    The polygon is cut at its first point and the point farthest from it, and
-    each half simplified; every dropped point lies within its own tolerance of
-    the kept chord (of its line, as ``cv2.approxPolyDP`` measures).
-    """
-    p = np.asarray(poly, np.float64)
-    tol = np.broadcast_to(np.asarray(tol, np.float64), (len(p),))
-    if len(p) < 4:
-        return p.copy()
-    far = int(np.argmax(np.hypot(*(p - p[0]).T)))
-    if far == 0:
-        return p[:1].copy()
-    first = _rdp_open(p[:far + 1], tol[:far + 1])
-    ring = np.concatenate([p[far:], p[:1]])
-    second = _rdp_open(ring, np.concatenate([tol[far:], tol[:1]]))[1:-1] + far
-    return p[np.concatenate([first, second])]
-
-
-__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines",
-           "simplify_closed"]
+__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines"]

@@ -124,7 +124,6 @@ class Borders:
         self.a = a[i] + t0[:, None] * d
         self.d = d / n[i][:, None]
         self.tree = cKDTree(self.a + 0.5 * self.d)
-        self.reach = 0.5 * step
 
     def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> BorderMix:
         """The border pixels of rows ``y0 .. y0 + len(index)`` and their coverage.
@@ -155,11 +154,13 @@ class Borders:
         ext = np.hstack([ext[:, :1], ext, ext[:, -1:]])
         inner = ext[:, 1:-1]
         # pixels with an 8-neighbour of another region, over the band and its halo
+        # (beyond the first and last rows the rows repeat: no neighbour differs there)
+        pad = np.pad(ext, ((1, 1), (0, 0)), mode="edge")
+        n = inner.shape[0]
         differs = np.zeros(inner.shape, bool)
         for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
-            nb = np.roll(np.roll(ext, -dy, axis=0), -dx, axis=1)[:, 1:-1]
+            nb = pad[1 + dy:1 + dy + n, 1 + dx:1 + dx + W]
             differs |= (nb != inner) & (nb >= 0)
-        differs[0] = differs[-1] = False  # (rolled around)
         differs &= inner >= 0
         near = differs[top:top + h]
         ys, xs = np.nonzero(near)

@@ -47,7 +47,7 @@ from ..gpu import tps as gtps
 from ..gpu import warp
 from .borders import Borders
 from .pixelmap import draw_order, pixel_map
-from .raster import ONE_PIECE_PIXELS, Stopwatch, output_size
+from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st, output_size
 
 
 #: Above this fraction of dirty pixels, every pixel is rasterised (one regular launch).
@@ -319,12 +319,9 @@ class LiveImage:
         mixed again after every update, their ``(S, T)`` across kept while
         the geometry stays.
         """
-        from ..gpu.patchmap import inverse_points
-
         if self._mix is None:
             mix = Borders(model, self.W, self.H).mix(self._pm.index)
-            st = inverse_points([r.patch for r in model.regions], mix.other, mix.xy, device=self.device)
-            self._mix = (mix, st)
+            self._mix = (mix, border_st(model, mix, self.device))
         mix, st = self._mix
         self._shown = warp().clone(self._out)
         gtps.mix_border(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads, clamp=self.clamp)

@@ -334,15 +334,21 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     return img
 
 
+def border_st(model, borders, device, patch_set=None) -> np.ndarray:
+    """``(S, T)`` of each of ``borders``' pixels in the patch of the region across."""
+    from ..gpu.patchmap import inverse_points
+
+    return inverse_points([r.patch for r in model.regions], borders.other, borders.xy, device=device,
+                          patch_set=patch_set)
+
+
 def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> None:
     """Mix the regions across borders into ``out`` (device frame) at ``borders``' pixels."""
     if borders is None or borders.pixels.size == 0:
         return
     from ..gpu import tps as gtps
-    from ..gpu.patchmap import inverse_points
 
-    st = inverse_points([r.patch for r in model.regions], borders.other, borders.xy, device=dk.device,
-                        patch_set=patch_set)
+    st = border_st(model, borders, dk.device, patch_set)
     gtps.mix_border(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
 
 
