@@ -32,6 +32,16 @@ import numpy as np
 GRADATION = 0
 CURVILINEAR = 1
 
+#: Detail modes of a region (``Detail.mode``).
+DETAIL_OFF = 0
+DETAIL_FULL = 1
+DETAIL_LUMA = 2
+#: Texel value of a zero residual, and texel steps per unit of sRGB (2 per 8-bit level).
+DETAIL_ZERO = 512
+DETAIL_GAIN = 510.0
+#: sRGB residual -> (Y, Cb, Cr) residual of the detail texture (ITU-R BT.601, full range).
+DETAIL_YCC = np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]])
+
 
 @dataclass
 class Patch:
@@ -211,6 +221,53 @@ class Params:
     extra: dict = field(default_factory=dict)
 
 
+@dataclass(eq=False)
+class Detail:
+    """The texture detail layer: what the vector image misses, per region in its ``(S, T)``.
+
+    The residual (photo minus vector render, sRGB, turned into Y, Cb, Cr so
+    that a recoloured region can keep just its luma) is one 10-bit texture,
+    ``texels``, laid out as the picture was when it was vectorised: a region
+    finds its texels through its rest frame, the affine map ``(S, T) ->
+    origin + S * ds + T * dt`` (texture pixels, centres at half-integers),
+    which is its patch at vectorisation time. The texels therefore follow
+    ``(S, T)``: they move with ``deform`` (which changes the patch, not the
+    frame), and ``crossmap`` gives a region another region's frame.
+    docs/FORMAT.md ("Detail") and docs/DESIGN.md ("Detail layer").
+
+    Attributes
+    ----------
+    payload : bytes
+        The texture as stored: a monochrome 10-bit AVIF image of the three
+        planes Y, Cb, Cr one below the other (``w x 3h``), kept so that
+        writing the model again gives the same bytes.
+    texels : ndarray, shape (h, w, 3), uint16
+        Decoded texture, (Y, Cb, Cr) of the residual, each
+        ``(texel - DETAIL_ZERO) / DETAIL_GAIN`` (:data:`DETAIL_YCC`).
+    frame : ndarray, shape (R, 3, 2), float64
+        Per region: origin, ``d/dS`` and ``d/dT`` of its texture position.
+    mode : ndarray, shape (R,), uint8
+        Per region: :data:`DETAIL_OFF`, :data:`DETAIL_FULL` or
+        :data:`DETAIL_LUMA` (only the residual's Y: a recoloured region
+        keeps its texture, not the old colours).
+    quality : int
+        The quality the texture was coded at (1-100; informative).
+    """
+
+    payload: bytes
+    texels: np.ndarray
+    frame: np.ndarray
+    mode: np.ndarray
+    quality: int = 0
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Detail):
+            return NotImplemented
+        return (self.payload == other.payload and self.quality == other.quality
+                and np.array_equal(self.texels, other.texels) and np.array_equal(self.frame, other.frame)
+                and np.array_equal(self.mode, other.mode))
+
+
 @dataclass
 class Model:
     """A hybrid vector image.
@@ -232,6 +289,8 @@ class Model:
         sorted, ``sigma`` the standard deviation (source px) of the Gaussian
         that blurs the step between them (a defocused edge stays soft at any
         scale). Borders not listed are sharp.
+    detail : Detail or None
+        The texture detail layer (None: the pure vector image).
     """
 
     width: int
@@ -241,3 +300,4 @@ class Model:
     params: Params = field(default_factory=Params)
     encoding: dict = field(default_factory=dict, compare=False, repr=False)
     blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    detail: Detail | None = field(default=None, repr=False)

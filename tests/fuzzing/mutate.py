@@ -145,12 +145,16 @@ def get_field(data: bytes, name: str) -> int:
 
 
 def split_sections(data: bytes) -> list[bytes]:
-    """The three compressed sections of a valid file."""
+    """The three compressed sections of a valid file, and its detail section when it has one."""
     sizes = [get_field(data, f"c{k}") for k in range(3)]
     out, start = [], layout.HEADER_SIZE
     for n in sizes:
         out.append(data[start:start + n])
         start += n
+    if get_field(data, "flags") & layout.FLAG_DETAIL:
+        (n, _) = layout.DETAIL_SIZES.unpack_from(data, start)
+        start += layout.DETAIL_SIZES.size
+        out.append(data[start:start + n])
     return out
 
 
@@ -162,7 +166,10 @@ def assemble(header_from: bytes, comps: list[bytes], raws: list[int], counts: di
         head = set_field(head, f"r{k}", raws[k])
     for name, value in (counts or {}).items():
         head = set_field(head, name, value)
-    return reseal(bytes(head) + b"".join(comps))
+    tail = b""
+    if len(comps) > 3:  # the detail section, behind its sizes
+        tail = layout.DETAIL_SIZES.pack(len(comps[3]), raws[3]) + comps[3]
+    return reseal(bytes(head) + b"".join(comps[:3]) + tail)
 
 
 def compress(raw: bytes, rng: random.Random) -> bytes:
@@ -305,9 +312,18 @@ def _pack(obj, rng: random.Random, ops: list) -> bytes:
 def mutate_section(case: Case, data: bytes, rng: random.Random) -> None:
     comps = split_sections(data)
     raws = [zstandard.ZstdDecompressor().decompress(c) for c in comps]
-    k = rng.randrange(3)
+    k = rng.randrange(len(comps))
     obj = msgpack.unpackb(raws[k], raw=False, strict_map_key=False)
-    case.ops.append(f"section {layout.SECTIONS[k]}")
+    case.ops.append(f"section {(layout.SECTIONS + ('detail',))[k]}")
+    if k == 3 and isinstance(obj, dict) and isinstance(obj.get("image"), bytes) and rng.random() < 0.5:
+        # the AVIF payload itself: flipped bytes, a cut, or a lie about its size in its boxes
+        image = bytearray(obj["image"])
+        for _ in range(rng.randint(1, 8)):
+            image[rng.randrange(len(image))] = rng.randrange(256)
+        if rng.random() < 0.3:
+            image = image[: rng.randrange(len(image))]
+        obj["image"] = bytes(image)
+        case.ops.append("detail image bytes")
     for _ in range(rng.randint(1, 3)):
         obj = _mutate_map(obj, rng, case.ops) if isinstance(obj, dict) else _hostile_value(rng, obj)
     if rng.random() < 0.03:
@@ -408,7 +424,9 @@ def mutate_quantized(case: Case, data: bytes, rng: random.Random) -> None:
         return
     counts = dict(regions=len(q.labels), polygons=int(q.vert_counts.size), vertices=int(q.xy.shape[0]),
                   ctrl_points=int(q.ctrl.size // 8), features=int(q.st.shape[0]))
-    case.data = assemble(data, [compress(r, rng) for r in raws], [len(r) for r in raws], counts)
+    detail = split_sections(data)[3:]  # kept as it is (its frames and modes count the regions)
+    sizes = [len(r) for r in raws] + [layout.parse_header(data).detail[1] for _ in detail]
+    case.data = assemble(data, [compress(r, rng) for r in raws] + detail, sizes, counts)
 
 
 # ------------------------------------------------------------------ model (valid files, hostile content)

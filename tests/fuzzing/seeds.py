@@ -19,6 +19,7 @@ from tpsv.model import CURVILINEAR, Features, Model, Params, Patch, Region
 
 CORPUS = Path(__file__).resolve().parent / "corpus"
 VERSION_1 = Path(__file__).resolve().parents[1] / "data" / "v1"
+VERSION_2 = Path(__file__).resolve().parents[1] / "data" / "v2"
 
 
 def grid_ctrl(m: int, n: int, x0: float, y0: float, w: float, h: float) -> np.ndarray:
@@ -112,5 +113,6 @@ def seed_files() -> tuple[tuple[str, bytes], ...]:
     """Every seed as ``(name, file bytes)``: the corpus, then the hand-built models encoded."""
     out = [(p.stem, p.read_bytes()) for p in sorted(CORPUS.glob("*.tpsv"))]
     out += [(f"v1-{p.stem}", p.read_bytes()) for p in sorted(VERSION_1.glob("*.tpsv"))]
+    out += [(f"v2-{p.stem}", p.read_bytes()) for p in sorted(VERSION_2.glob("*.tpsv"))]
     out += [(name, codec.encode(make())) for name, make in HAND_MODELS.items()]
     return tuple(out)

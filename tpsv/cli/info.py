@@ -8,7 +8,7 @@ from . import main
 from .options import emit_json, json_option
 from .. import codec
 from ..fileio import display, read_bytes
-from ..model import CURVILINEAR
+from ..model import CURVILINEAR, DETAIL_FULL, DETAIL_LUMA
 
 
 def summary(data: bytes) -> dict:
@@ -20,6 +20,7 @@ def summary(data: bytes) -> dict:
     """
     model = codec.decode(data)
     kinds = model.features.kind
+    d = model.detail
     p = model.params
     return {
         "width": model.width,
@@ -34,6 +35,13 @@ def summary(data: bytes) -> dict:
         "grids": [list(r.patch.shape) for r in model.regions],
         # soft borders: (region a, region b, edge width in px); the others are sharp
         "edge_widths": [[int(a), int(b), float(w)] for a, b, w in model.blur],
+        "quality": model.params.extra.get("quality"),
+        # the texture detail layer: None for a pure vector image
+        "detail": None if d is None else {
+            "quality": d.quality, "width": int(d.texels.shape[1]), "height": int(d.texels.shape[0]),
+            "bytes": codec.section_sizes(data)["detail"],
+            "regions_full": int((d.mode == DETAIL_FULL).sum()), "regions_luma": int((d.mode == DETAIL_LUMA).sum()),
+        },
         "params": {
             "t_canny": p.t_canny,
             "t_super": p.t_super,
@@ -74,6 +82,15 @@ def info(path: str, as_json: bool) -> None:
         click.echo(f"  borders   {len(widths)} soft (edge width {min(widths):g}-{max(widths):g} px), the others sharp")
     else:
         click.echo("  borders   all sharp")
+    q = s["quality"]
+    click.echo(f"  quality   {q if isinstance(q, int) else 'not set (threshold mode)'}")
+    d = s["detail"]
+    if d is None:
+        click.echo("  detail    none (pure vector image)")
+    else:
+        luma = f", {d['regions_luma']} luma only" if d["regions_luma"] else ""
+        click.echo(f"  detail    {d['width']}x{d['height']} texels, AVIF at quality {d['quality']}, {d['bytes']} B; "
+                   f"{d['regions_full']} regions full{luma}")
     click.echo("  sections  " + ", ".join(f"{k} {v} B" for k, v in s["sections"].items()))
     click.echo("  params    " + _pairs(params))
     if extra:

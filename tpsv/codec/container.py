@@ -10,6 +10,7 @@ import zstandard
 from ..errors import TpsvFormatError
 from ..fileio import read_bytes, write_bytes_atomic
 from ..model import Model
+from . import detail as detail_codec
 from . import layout, quant, sections
 
 #: zstd level for every section. Measured on the samples' features (mostly
@@ -50,7 +51,9 @@ def quantize(model: Model) -> Model:
     ValueError
         The model cannot be encoded (see :func:`encode`).
     """
-    return quant.to_model(_quantized(model))
+    out = quant.to_model(_quantized(model))
+    out.detail = detail_codec.quantize(model.detail, len(model.regions))
+    return out
 
 
 def encode(model: Model) -> bytes:
@@ -78,24 +81,33 @@ def encode(model: Model) -> bytes:
         values, features not sorted by region, asymmetric pairs.
     """
     q = _quantized(model)
+    detail = detail_codec.quantize(model.detail, len(q.labels))
     raws = (sections.pack_params(q), sections.pack_regions(q), sections.pack_features(q))
     # No zstd checksum (the header's CRC-32 covers the payload) and no dict id.
     cctx = zstandard.ZstdCompressor(
         level=ZSTD_LEVEL, write_content_size=True, write_checksum=False, write_dict_id=False
     )
     comps = tuple(cctx.compress(raw) for raw in raws)
+    tail = b""
+    if detail is not None:
+        raw = detail_codec.pack_section(detail, len(q.labels))
+        comp = cctx.compress(raw)
+        tail = layout.DETAIL_SIZES.pack(len(comp), len(raw)) + comp
     header = layout.Header(
-        version=layout.VERSION, flags=0, width=q.width, height=q.height,
+        version=layout.VERSION, flags=layout.FLAG_DETAIL if detail is not None else 0, width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
         vertices=int(q.xy.shape[0]), ctrl_points=int(q.ctrl.size // 8),
         features=int(q.st.shape[0]),
         compressed=tuple(len(c) for c in comps), raw=tuple(len(r) for r in raws),
+        detail=(len(tail) - layout.DETAIL_SIZES.size, len(raw)) if detail is not None else (0, 0),
     )
     try:
         layout.check_header_limits(header)
     except TpsvFormatError as exc:
         raise ValueError(f"model cannot be encoded: {exc}") from None
-    payload = b"".join(comps)
+    if detail is not None and header.detail[1] > layout.detail_raw_bound(header):
+        raise ValueError("model cannot be encoded: the detail layer is larger than the format allows")
+    payload = b"".join(comps) + tail
     data = layout.pack_header(header, zlib.crc32(payload)) + payload
     if len(data) > layout.MAX_FILE_BYTES:
         raise ValueError(f"model cannot be encoded: {len(data)} bytes exceed {layout.MAX_FILE_BYTES}")
@@ -137,7 +149,12 @@ def decode(data: bytes) -> Model:
         **sections.unpack_regions(raws[1], h), **sections.unpack_features(raws[2], h),
     )
     quant.validate(q)
-    return quant.to_model(q)
+    model = quant.to_model(q)
+    if h.has_detail:
+        start += layout.DETAIL_SIZES.size
+        raw = _decompress(payload[start:start + h.detail[0]], h.detail[1], "detail")
+        model.detail = detail_codec.unpack_section(raw, h)
+    return model
 
 
 def _decompress(frame: memoryview, size: int, name: str) -> bytes:
@@ -187,11 +204,15 @@ def section_sizes(data: bytes) -> dict[str, int]:
     Returns
     -------
     dict
-        ``{"header": 72, "params": ..., "regions": ..., "features": ...}``;
-        the values sum to ``len(data)``.
+        ``{"header": 72, "params": ..., "regions": ..., "features": ...}``,
+        and ``"detail"`` (its sizes included) when the file has a detail
+        layer; the values sum to ``len(data)``.
     """
     h = layout.parse_header(memoryview(data).cast("B"))
-    return {"header": layout.HEADER_SIZE, **dict(zip(layout.SECTIONS, h.compressed))}
+    out = {"header": layout.HEADER_SIZE, **dict(zip(layout.SECTIONS, h.compressed))}
+    if h.has_detail:
+        out["detail"] = layout.DETAIL_SIZES.size + h.detail[0]
+    return out
 
 
 def _display(path) -> str:

@@ -18,7 +18,11 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 2
+VERSION = 3
+#: Header flag (version 3): a detail section follows the features section,
+#: preceded by its compressed and raw sizes (two little-endian uint32).
+FLAG_DETAIL = 1
+DETAIL_SIZES = struct.Struct("<II")
 
 #: Little-endian header: magic, version, flags, width, height, 5 counts,
 #: 3 (compressed, raw) section sizes, payload CRC-32, header CRC-32.
@@ -102,11 +106,23 @@ class Header:
     features: int
     compressed: tuple[int, int, int]
     raw: tuple[int, int, int]
+    #: (compressed, raw) size of the detail section; (0, 0) without one.
+    detail: tuple[int, int] = (0, 0)
+
+    @property
+    def has_detail(self) -> bool:
+        return bool(self.flags & FLAG_DETAIL)
+
+    @property
+    def detail_offset(self) -> int:
+        """Where the detail section's sizes start (after the three sections)."""
+        return HEADER_SIZE + sum(self.compressed)
 
     @property
     def file_size(self) -> int:
-        """Total file size the header declares."""
-        return HEADER_SIZE + sum(self.compressed)
+        """Total file size the header declares (with the detail section's, when flagged)."""
+        extra = DETAIL_SIZES.size + self.detail[0] if self.has_detail else 0
+        return HEADER_SIZE + sum(self.compressed) + extra
 
 
 def pack_header(h: Header, payload_crc: int) -> bytes:
@@ -142,6 +158,13 @@ def raw_size_bounds(h: Header) -> tuple[int, int, int]:
         regions += 4 * h.polygons + 8 * h.vertices  # vertices per polygon, x, y as 32-bit
     features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features
     return params, regions, features
+
+
+def detail_raw_bound(h: Header) -> int:
+    """Largest raw detail section the header counts allow: frames and modes
+    per region, and a texture at most the canvas whose AVIF file is at most
+    what lossless 10-bit coding of noise takes (under 4 bytes a pixel)."""
+    return SECTION_OVERHEAD + 25 * h.regions + 8 * h.width * h.height + 65536
 
 
 def parse_header(data: bytes | memoryview) -> Header:
@@ -185,11 +208,24 @@ def parse_header(data: bytes | memoryview) -> Header:
      features, c0, r0, c1, r1, c2, r2, _payload_crc, header_crc) = fields
     if zlib.crc32(data[:HEADER_CRC_OFFSET]) != header_crc:
         raise TpsvFormatError("corrupt header: header checksum mismatch")
-    if flags != 0:
-        raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {version} defines none)")
+    known = FLAG_DETAIL if version >= 3 else 0
+    if flags & ~known:
+        raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {version} defines 0x{known:04x})")
     h = Header(version, flags, width, height, regions, polygons, vertices,
                ctrl_points, features, (c0, c1, c2), (r0, r1, r2))
     check_header_limits(h)
+    if h.has_detail:
+        at = h.detail_offset
+        if n < at + DETAIL_SIZES.size:
+            raise TpsvFormatError(f"truncated file: the detail section's sizes need {at + DETAIL_SIZES.size} bytes, got {n}")
+        dc, dr = DETAIL_SIZES.unpack_from(data, at)
+        if dc == 0:
+            raise TpsvFormatError("section detail: empty (a zstd frame is required)")
+        bound = detail_raw_bound(h)
+        if dr > bound:
+            raise TpsvFormatError(f"section detail: declared size {dr} exceeds the bound {bound} for the header counts")
+        h = Header(version, flags, width, height, regions, polygons, vertices,
+                   ctrl_points, features, (c0, c1, c2), (r0, r1, r2), (dc, dr))
     if n < h.file_size:
         raise TpsvFormatError(
             f"truncated file: header declares {h.file_size} bytes, got {n}"

@@ -33,6 +33,12 @@ Modes
   cross-dissolve that keeps the structure of both (the paper's alpha map
   across patches, with one alpha per region).
 
+Detail layer: the target region takes the source region's texture too (its
+rest frame composed with the correspondence), in replace mode and in blend
+mode with ``alpha >= 0.5`` (one texture per region: the one that dominates).
+A source in another file has another texture: the target region's detail is
+then switched off.
+
 Curvilinear pairs: a mapped source feature keeps its partner when the
 partner is mapped too (an edge inside the source region); a partner in
 another source region is not mapped, and the feature becomes unpaired. In
@@ -51,9 +57,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .common import check_region, clip_lab, concat_features, copy_model, sort_by_region, tps_lab
 from ..errors import TpsvError
-from ..model import Features, Model
+from ..model import DETAIL_OFF, Features, Model
+from .common import check_region, clip_lab, concat_features, copy_model, sort_by_region, tps_lab
 
 
 def map_st(st, rotate: int = 0, flip: bool = False) -> np.ndarray:
@@ -184,4 +190,25 @@ def crossmap(
         base = Features(region=tf.region.copy(), st=tf.st.copy(), lab=lab, kind=tf.kind.copy(), pair=tf.pair.copy())
         feats = concat_features(base, mapped)
     out.features = sort_by_region(feats)
+    if out.detail is not None and (alpha is None or alpha >= 0.5):
+        _carry_detail(out.detail, tr, source, sr, rot, flip)
     return out
+
+
+def _carry_detail(detail, tr: int, source: Model, sr: int, rot: int, flip: bool) -> None:
+    """Give target region ``tr`` the source region's texture, rotated and flipped as its features.
+
+    The target's ``(S, T)`` goes back to the source's through ``unmap_st``
+    (affine), then through the source's rest frame: the composition is the
+    target's new (affine) frame. A source in another file has another
+    texture, which one frame cannot point into: the target region's detail
+    is then switched off (its vector colours are the source's).
+    """
+    if source.detail is None or source.detail.payload != detail.payload:
+        detail.mode[tr] = DETAIL_OFF
+        return
+    O, dS, dT = source.detail.frame[sr]
+    corners = unmap_st(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), rot, flip)
+    at = O + corners[:, :1] * dS + corners[:, 1:] * dT
+    detail.frame[tr] = (at[0], at[1] - at[0], at[2] - at[0])
+    detail.mode[tr] = source.detail.mode[sr]

@@ -76,6 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..color import lab_to_srgb, srgb_to_lab
+from ..model import DETAIL_FULL, DETAIL_LUMA
 from .common import check_point, check_region, clip_lab, copy_model, feature_xy, region_at
 from ..errors import TpsvError
 from ..model import GRADATION, Model
@@ -394,7 +395,14 @@ def recolor_selected(
     new_lab = f.lab.copy()
     new_lab[sel] = lab[sel].astype(np.float32)
     out.features.lab = new_lab
-    changed = int((new_lab != f.lab).any(axis=1).sum())
+    moved = (new_lab != f.lab).any(axis=1)
+    changed = int(moved.sum())
+    if out.detail is not None and changed:
+        # the texture's colours belong to the old colours: keep only its luma
+        d = out.detail
+        hit = np.zeros(len(out.regions), bool)
+        hit[f.region[moved]] = True
+        d.mode = np.where(hit & (d.mode == DETAIL_FULL), DETAIL_LUMA, d.mode).astype(np.uint8)
     if harmony is None:
         return Recolored(out, int(sel.size), changed)
     return Recolored(out, int(sel.size), changed, template=harmony[0], rotation=harmony[1])

@@ -88,6 +88,7 @@ def abstract(model: Model, level: int = 1) -> Model:
     """The model at abstraction ``level`` (see the module docstring); returns a new model."""
     n = _check_level(level)
     out = copy_model(model)
+    out.detail = None  # an abstraction has no photographic texture
     if n == 0 or len(model.features) == 0:
         return out
     f = model.features

@@ -236,6 +236,10 @@ class VectorizeResult:
     mse: float
     seconds: float
     history: list = field(default_factory=list)
+    #: The quality (1-100) of a rate-controlled encoding (``tpsv.encode.rate``), else None.
+    quality: int | None = None
+    #: False when a PSNR target was not reached (the result is the closest).
+    reached: bool = True
 
 
 class Evaluation(NamedTuple):

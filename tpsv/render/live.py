@@ -27,6 +27,8 @@ kernels, the rendered image) and brings them up to date for a new model:
 5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.render.borders`)
    are mixed into a copy of that frame after every update; where they are and
    their ``(S, T)`` across are found again only when the geometry changed.
+6. **Detail.** The detail layer (:mod:`tpsv.gpu.detail`) is added to every
+   pixel of that copy; its texture is uploaded again only when it changed.
 
 The result is bit-identical to :func:`tpsv.render.raster.render` of the new model
 (tests check it); :class:`UpdateStats` says how much was rebuilt.
@@ -198,6 +200,7 @@ class LiveImage:
         self._mix = None  # its anti-aliased border pixels and their (S, T) across
         self._shown = None  # _out with the borders mixed in
         self._duplicates = None  # duplicate groups of the current features' positions
+        self._detail = (None, None)  # (Detail, DeviceDetail) last uploaded
         self.stats = self._rebuild(model, full=True)
 
     # ------------------------------------------------------------------ public
@@ -242,6 +245,8 @@ class LiveImage:
         watch("rasterise")
         self._mix_borders(model, dk)
         watch("borders")
+        self._add_detail(model)
+        watch("detail")
         times = dict(watch.times, total=time.perf_counter() - t_start)
         self.model, self.kernels, self._dk = model, ks, dk
         return UpdateStats(kernels=ks.n_kernels, solved=solved, pixels=pixels, regrouped=regrouped,
@@ -325,6 +330,18 @@ class LiveImage:
         mix, st = self._mix
         self._shown = warp().clone(self._out)
         gtps.mix_border(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads, clamp=self.clamp)
+
+    def _add_detail(self, model) -> None:
+        """Step 6: the detail layer added to the shown image (as ``render`` does)."""
+        if model.detail is None:
+            return
+        from ..gpu.detail import DeviceDetail, add_detail
+
+        src, dd = self._detail
+        if src is None or src != model.detail:
+            dd = DeviceDetail(model.detail, self.device)
+            self._detail = (model.detail, dd)
+        add_detail(dd, self._shown, self._pm.index_d, self._pm.st_d, threads=self.threads)
 
     def _kernel_dirty(self, ks, old_ks, reuse) -> np.ndarray:
         """Pixels (flat bool) whose colour may depend on a re-solved kernel or a changed grid or fill."""

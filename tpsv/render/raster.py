@@ -219,6 +219,7 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
     maps = BandMaps(model, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
     borders = Borders(model, W, H) if antialias else None
     dk = gtps.solve(gtps.upload(ks, device), threads=threads)
+    dd = device_detail(model, device)
     for y0 in range(0, H, rows):
         y1 = min(y0 + rows, H)
         pm = maps.band(y0, y1)
@@ -228,6 +229,7 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
             halo = (maps.index(max(0, y0 - hr), y0) if y0 > 0 else None,
                     maps.index(y1, min(H, y1 + hr)) if y1 < H else None)
             _mix_borders(model, dk, out, borders.mix(pm.index, y0, halo), threads, clamp, maps.patch_set)
+        _add_detail(model, out, pm.index_d, pm.st_d, device, threads, dd)
         del pm
         yield y0, out.numpy().reshape(y1 - y0, W, 3)
         del out
@@ -240,7 +242,8 @@ def render_timed(model, width=None, height=None, scale=None, device: str = "cpu"
     (the region map to the device), ``patchmap``, ``edges`` (the border
     pixels and their coverage, host), ``group`` (host), ``upload``,
     ``solve`` (build + solve), ``rasterise``, ``borders`` (the regions
-    across mixed in), ``download``, and ``total`` (their sum). Device stages end
+    across mixed in), ``detail`` (the detail layer added; with its upload),
+    ``download``, and ``total`` (their sum). Device stages end
     with a device synchronisation. The first call on a device also compiles
     or loads Warp modules: call once before timing (``repeat >= 2``).
     """
@@ -329,6 +332,8 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     tick("rasterise")
     _mix_borders(model, dk, out, borders, threads, clamp)
     tick("borders")
+    _add_detail(model, out, index, st, device, threads)
+    tick("detail")
     img = out.numpy().reshape(H, W, 3)
     tick("download")
     return img
@@ -340,6 +345,24 @@ def border_st(model, borders, device, patch_set=None) -> np.ndarray:
 
     return inverse_points([r.patch for r in model.regions], borders.other, borders.xy, device=device,
                           patch_set=patch_set)
+
+
+def device_detail(model, device: str):
+    """The model's detail layer on ``device`` (:class:`tpsv.gpu.detail.DeviceDetail`), or None."""
+    if model.detail is None:
+        return None
+    from ..gpu.detail import DeviceDetail
+
+    return DeviceDetail(model.detail, resolve_device(device))
+
+
+def _add_detail(model, out, index, st, device, threads, dd=None) -> None:
+    """Add the model's detail layer (if any) to ``out`` (device frame)."""
+    if model.detail is None:
+        return
+    from ..gpu.detail import add_detail
+
+    add_detail(dd if dd is not None else device_detail(model, device), out, index, st, threads=threads)
 
 
 def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> None:

@@ -1,0 +1,293 @@
+"""The texture detail layer and rate control (issue 11): tpsv.encode.rate, tpsv.encode.detail,
+tpsv.codec.detail, tpsv.gpu.detail."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import struct
+
+import msgpack
+import numpy as np
+import pytest
+import zstandard
+from click.testing import CliRunner
+
+from tpsv import codec, metrics
+from tpsv.cli import main
+from tpsv.codec import detail as detail_codec
+from tpsv.codec import layout
+from tpsv.edit.crossmap import crossmap
+from tpsv.edit.deform import move_points
+from tpsv.edit.recolor import recolor_selected
+from tpsv.edit.stylize import abstract
+from tpsv.encode.rate import encode_quality
+from tpsv.errors import TpsvError, TpsvFormatError
+from tpsv.model import DETAIL_FULL, DETAIL_LUMA, DETAIL_OFF
+from tpsv.render.live import LiveImage
+from tpsv.render.raster import render, render_bands
+
+from conftest import small_sample
+
+
+@pytest.fixture(scope="module")
+def photo():
+    rgb = small_sample("coffee", 64)
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    labels[:, 26:] = 1
+    return rgb, labels
+
+
+@pytest.fixture(scope="module")
+def ladder(photo):
+    """Encodings at rising qualities, with and without the detail layer."""
+    rgb, labels = photo
+    return {(q, d): encode_quality(rgb, labels, quality=q, detail=d) for q in (10, 40, 75, 95) for d in (True, False)}
+
+
+@pytest.fixture(scope="module")
+def textured(ladder):
+    return ladder[(75, True)]
+
+
+def psnr(a, b) -> float:
+    return 10 * np.log10(1.0 / metrics.mse(a, b))
+
+
+# ------------------------------------------------------------------ rate control
+
+
+@pytest.mark.parametrize("detail", [True, False])
+def test_bytes_and_psnr_rise_with_quality(ladder, detail):
+    runs = [ladder[(q, detail)] for q in (10, 40, 75, 95)]
+    sizes = [len(r.data) for r in runs]
+    quality = [r.psnr for r in runs]
+    assert sizes == sorted(sizes) and len(set(sizes)) == len(sizes), sizes
+    assert quality == sorted(quality), quality
+    assert [r.quality for r in runs] == [10, 40, 75, 95]
+
+
+def test_the_detail_layer_is_what_reaches_high_quality(ladder):
+    assert ladder[(95, True)].psnr > 38.0
+    assert ladder[(95, True)].psnr > ladder[(95, False)].psnr + 3.0
+    assert codec.decode(ladder[(75, False)].data).detail is None
+
+
+def test_reported_psnr_is_the_render_of_the_file(photo, textured):
+    rgb, _ = photo
+    model = codec.decode(textured.data)
+    assert model.detail is not None and model.params.extra["quality"] == 75
+    assert psnr(rgb, render(model)) == pytest.approx(textured.psnr, abs=0.02)
+
+
+def test_max_bytes_is_never_exceeded(photo, textured):
+    rgb, labels = photo
+    budget = len(textured.data)
+    out = encode_quality(rgb, labels, max_bytes=budget - 1)
+    assert len(out.data) <= budget - 1 and out.quality < 75
+    at = encode_quality(rgb, labels, max_bytes=budget)
+    assert len(at.data) <= budget and at.quality >= 75
+    with pytest.raises(TpsvError, match="no quality fits in 100 bytes"):
+        encode_quality(rgb, labels, max_bytes=100)
+
+
+def test_target_psnr_met_or_closest_reported(photo, textured):
+    rgb, labels = photo
+    out = encode_quality(rgb, labels, target_psnr=textured.psnr)
+    assert out.reached and out.psnr >= textured.psnr and out.quality <= 75
+    far = encode_quality(rgb, labels, target_psnr=99.0)
+    assert not far.reached and far.quality == 100
+
+
+def test_one_target_at_a_time(photo):
+    rgb, labels = photo
+    with pytest.raises(TpsvError, match="give one of"):
+        encode_quality(rgb, labels, quality=50, max_bytes=1000)
+    with pytest.raises(TpsvError, match="not in 1..100"):
+        encode_quality(rgb, labels, quality=0)
+
+
+# ------------------------------------------------------------------ codec
+
+
+def test_detail_survives_encode_decode_bit_exactly(textured):
+    model = codec.decode(textured.data)
+    d = model.detail
+    assert d.texels.dtype == np.uint16 and d.texels.shape == (model.height, model.width, 3)
+    assert d.payload[4:12] == b"ftypavif"
+    assert detail_codec.image_sizes(d.payload) == [(model.width, 3 * model.height)]
+    again = codec.decode(codec.encode(model))
+    assert again.detail == d
+    assert codec.encode(model) == textured.data
+    assert codec.encode(codec.quantize(model)) == textured.data
+    sizes = codec.section_sizes(textured.data)
+    assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
+    assert struct.unpack_from("<HH", textured.data, 8) == (3, layout.FLAG_DETAIL)
+
+
+def _detail_map(data: bytes) -> dict:
+    h = layout.parse_header(data)
+    at = h.detail_offset + layout.DETAIL_SIZES.size
+    return msgpack.unpackb(zstandard.ZstdDecompressor().decompress(data[at:at + h.detail[0]]), raw=False)
+
+
+def _with_detail(data: bytes, obj=None, raw: bytes | None = None, raw_size: int | None = None) -> bytes:
+    """``data`` with its detail section replaced (CRCs fixed, so a check must refuse, not a checksum)."""
+    import zlib
+
+    h = layout.parse_header(data)
+    raw = msgpack.packb(obj, use_bin_type=True) if raw is None else raw
+    comp = zstandard.ZstdCompressor().compress(raw)
+    out = bytearray(data[:h.detail_offset] + layout.DETAIL_SIZES.pack(len(comp), raw_size or len(raw)) + comp)
+    struct.pack_into("<I", out, 64, zlib.crc32(bytes(out[layout.HEADER_SIZE:])))
+    struct.pack_into("<I", out, 68, zlib.crc32(bytes(out[:68])))
+    return bytes(out)
+
+
+def _reject(data: bytes, match: str) -> None:
+    with pytest.raises(TpsvFormatError, match=match) as info:
+        codec.decode(data)
+    assert "\n" not in str(info.value)
+
+
+def _bigger_ispe(image: bytes, w: int, h: int) -> bytes:
+    at = image.index(b"ispe")
+    return image[:at + 8] + struct.pack(">II", w, h) + image[at + 16:]
+
+
+def test_hostile_detail_sections_are_refused(textured):
+    data = textured.data
+    base = _detail_map(data)
+    R = len(codec.decode(data).regions)
+    image = base["image"]
+    cases = [
+        ({"codec": "webp"}, "unknown codec"),
+        ({"width": 10**6}, "width = 1000000 not in"),
+        ({"height": 0}, "height = 0 not in"),
+        ({"quality": 101}, "quality = 101 not in"),
+        ({"frame": b"\0" * (24 * R - 4)}, "frame has"),
+        ({"mode": b"\3" * R}, "mode 3 not in"),
+        ({"mode": b"\1"}, "mode has 1 bytes"),
+        ({"image": "text"}, "image is not a bin"),
+        ({"image": b"\x89PNG\r\n\x1a\n" + image}, "not an AVIF file"),
+        ({"image": image[:40]}, "truncated box|bad size|cannot be decoded|declares no size"),
+        ({"image": image[:len(image) // 2]}, "cannot be decoded|bad size"),
+        ({"image": _bigger_ispe(image, 60000, 60000)}, "declares 60000x60000"),
+        ({"width": base["width"] - 1}, "declares|decodes to"),
+    ]
+    for change, match in cases:
+        _reject(_with_detail(data, {**base, **change}), match)
+    extra = dict(base, more=1)
+    _reject(_with_detail(data, extra), "unknown key 'more'")
+    missing = {k: v for k, v in base.items() if k != "mode"}
+    _reject(_with_detail(data, missing), "missing key 'mode'")
+    _reject(_with_detail(data, raw=b"\xc1"), "bad msgpack")
+    # a bomb: a raw size past what the canvas allows is refused before inflating
+    h = layout.parse_header(data)
+    _reject(_with_detail(data, base, raw_size=layout.detail_raw_bound(h) + 1), "exceeds the bound")
+    # the flag on a version-2 file is not a thing
+    import zlib
+
+    v2 = bytearray(data)
+    struct.pack_into("<H", v2, 8, 2)
+    struct.pack_into("<I", v2, 68, zlib.crc32(bytes(v2[:68])))
+    _reject(bytes(v2), "unsupported flags 0x0001")
+    _reject(data[:layout.parse_header(data).detail_offset + 3], "truncated")
+
+
+# ------------------------------------------------------------------ rendering
+
+
+def test_bands_and_live_image_match_the_render_with_detail(textured):
+    model = codec.decode(textured.data)
+    for scale in (1, 2.5):
+        whole = render(model, scale=scale)
+        rows = np.concatenate([r for _, r in render_bands(model, scale=scale, max_pixels=1000)])
+        assert np.array_equal(rows, np.round(whole * 255).astype(np.uint8))
+    live = LiveImage(model)
+    assert np.array_equal(live.image, render(model))
+    edited = recolor_selected(model, np.ones(len(model.features), bool), lightness=10.0).model
+    live.update(edited)
+    assert np.array_equal(live.image, render(edited))
+
+
+def test_magnified_detail_is_smooth(textured):
+    """At scale 4 the texture is interpolated, not blocky: no 4x4 plateaus of equal pixels."""
+    model = codec.decode(textured.data)
+    big = render(model, scale=4)
+    flat = np.abs(np.diff(big, axis=1)).max(axis=2) < 1e-7
+    assert flat.mean() < 0.2
+
+
+# ------------------------------------------------------------------ edits
+
+
+def test_deform_moves_the_texture_with_the_patch(photo, textured):
+    model = codec.decode(textured.data)
+    before = render(model)
+    M, N = model.regions[1].patch.shape
+    moves = [(1, i, j, 3.0, 0.0) for i in range(M) for j in range(N)]
+    moved = move_points(model, moves, keep_order=True)
+    assert np.array_equal(moved.detail.frame, model.detail.frame)
+    after = render(moved)
+    # well inside region 1 (x >= 26), the picture is the old one 3 px to the right
+    inner = np.s_[8:-8, 34:58]
+    shifted = np.s_[8:-8, 37:61]
+    assert np.abs(after[shifted] - before[inner]).mean() < 2 / 255
+
+
+def test_crossmap_carries_the_source_texture(photo, textured):
+    rgb, _ = photo
+    model = codec.decode(textured.data)
+    out = crossmap(model, 1, source_region=0)
+    O, dS, dT = out.detail.frame[1]
+    assert np.allclose(out.detail.frame[1], model.detail.frame[0]) and out.detail.mode[1] == DETAIL_FULL
+    flipped = crossmap(model, 1, source_region=0, flip=True)
+    O2, dS2, dT2 = flipped.detail.frame[1]
+    assert np.allclose(O2, O + dS) and np.allclose(dS2, -dS) and np.allclose(dT2, dT)
+    # from another file: the other texture cannot be pointed into, so region 1 goes plain
+    other = dataclasses.replace(model, detail=dataclasses.replace(model.detail, payload=model.detail.payload + b"x"))
+    assert crossmap(model, 1, source=other, source_region=0).detail.mode[1] == DETAIL_OFF
+
+
+def test_recolor_keeps_the_luma_of_the_texture(textured):
+    model = codec.decode(textured.data)
+    sel = model.features.region == 1
+    out = recolor_selected(model, sel, hue=120.0).model
+    assert list(out.detail.mode) == [DETAIL_FULL, DETAIL_LUMA]
+    img = render(out)
+    plain = render(dataclasses.replace(out, detail=None))
+    added = (img - plain)[:, 40:]
+    grey = np.abs(added - added.mean(axis=2, keepdims=True)).max(axis=2)
+    clipped = (img[:, 40:] <= 0).any(axis=2) | (img[:, 40:] >= 1).any(axis=2)
+    assert grey[~clipped].max() < 2e-3  # the same residual on every channel
+    assert np.abs(added).mean() > 1e-3  # and there is one
+
+
+def test_stylize_drops_the_detail(textured):
+    assert abstract(codec.decode(textured.data), 1).detail is None
+
+
+# ------------------------------------------------------------------ command line
+
+
+def test_cli_quality_options(tmp_path, small_png):
+    out = tmp_path / "q.tpsv"
+    r = CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(out), "--quality", "60", "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["quality"] == 60 and s["detail_quality"] == 60 and s["detail_bytes"] > 0 and s["reached"]
+    r = CliRunner().invoke(main, ["info", str(out)])
+    assert "quality   60" in r.output and "AVIF at quality 60" in r.output
+    r = CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(out), "--max-bytes", "3000", "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["bytes"] <= 3000 and out.stat().st_size <= 3000
+    r = CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(out), "--no-detail", "--json"])
+    assert json.loads(r.output)["detail_bytes"] == 0
+    for bad, match in ((["--quality", "50", "--search"], "do not go with"),
+                       (["--quality", "50", "--max-bytes", "9"], "give one of"),
+                       (["--max-bytes", "10"], "no quality fits in 10 bytes")):
+        gone = tmp_path / "gone.tpsv"
+        r = CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(gone)] + bad)
+        assert r.exit_code != 0 and match in r.output and not gone.exists()
+        assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1

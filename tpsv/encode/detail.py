@@ -1,0 +1,73 @@
+"""The texture detail layer: what the vector image misses, coded in patch space.
+
+The residual ``photo - render(vector model)`` at scale 1 is stored as one
+10-bit texture laid out like the photo, and every region reads it through its
+rest frame (``tpsv.model.Detail``): the affine map of its patch when it was
+vectorised. At rest a pixel's ``(S, T)`` leads back to its own texel, so
+nothing is resampled and the scale-1 picture gets the whole residual; after
+``deform`` the texels follow ``(S, T)``. The texture is coded with AVIF
+(docs/DESIGN.md, "Detail layer", for the codec comparison behind the choice).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..codec import detail as detail_codec
+from ..geometry.patch import affine_frame
+from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_YCC, DETAIL_ZERO, Detail, Model
+
+
+def rest_frames(model: Model) -> np.ndarray:
+    """Each region's rest frame ``(origin, d/dS, d/dT)`` (R, 3, 2): its patch, which is affine when fresh.
+
+    A patch that is not affine (a model deformed before its detail layer was
+    made) gets the affine map through three of its corners.
+    """
+    out = np.zeros((len(model.regions), 3, 2), np.float64)
+    for r, region in enumerate(model.regions):
+        M, N = region.patch.shape
+        ctrl = np.asarray(region.patch.ctrl, np.float64)
+        fa = affine_frame(region.patch)
+        if fa is not None:
+            O, A = fa
+            out[r] = (O, A[:, 0] * (M - 1), A[:, 1] * (N - 1))
+        else:
+            O = ctrl[0, 0, 0]
+            out[r] = (O, ctrl[-1, 0, 0] - O, ctrl[0, -1, 0] - O)
+    return out
+
+
+def residual_texels(rgb: np.ndarray, rendered: np.ndarray) -> np.ndarray:
+    """The residual ``rgb - rendered`` (sRGB, both (H, W, 3) in [0, 1]) as 10-bit (Y, Cb, Cr) texels (uint16)."""
+    res = (np.asarray(rgb, np.float64) - np.asarray(rendered, np.float64)) @ DETAIL_YCC.T
+    return np.clip(np.rint(DETAIL_ZERO + DETAIL_GAIN * res), 0, 1023).astype(np.uint16)
+
+
+def texel_rgb(texels: np.ndarray) -> np.ndarray:
+    """The sRGB residual (h, w, 3) float32 of (Y, Cb, Cr) texels."""
+    ycc = (texels.astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN
+    return (ycc @ np.linalg.inv(DETAIL_YCC).T).astype(np.float32)
+
+
+def code_texels(texels: np.ndarray, quality: int) -> tuple[bytes, np.ndarray]:
+    """``(payload, decoded texels)`` of ``texels`` coded at ``quality`` (1-100)."""
+    payload = detail_codec.encode_texels(texels, quality)
+    h, w = texels.shape[:2]
+    return payload, detail_codec.decode_texels(payload, w, h)
+
+
+def make_detail(model: Model, texels: np.ndarray, quality: int, coded: tuple | None = None) -> Detail:
+    """The detail layer of ``model`` with residual ``texels`` at ``quality`` (every region in full mode).
+
+    ``coded``: ``code_texels(texels, quality)`` when already computed.
+    """
+    payload, decoded = coded if coded is not None else code_texels(texels, quality)
+    R = len(model.regions)
+    return Detail(payload=payload, texels=decoded, frame=rest_frames(model),
+                  mode=np.full(R, DETAIL_FULL, np.uint8), quality=int(quality))
+
+
+def with_texels(rendered: np.ndarray, texels: np.ndarray) -> np.ndarray:
+    """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual."""
+    return np.clip(rendered + texel_rgb(texels), 0.0, 1.0)

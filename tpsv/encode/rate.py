@@ -1,0 +1,217 @@
+"""Rate control: one quality knob, a PSNR target or a byte budget.
+
+``tpsv vectorize --quality Q`` (1-100, like JPEG). With the detail layer (the
+default) the picture is a cheap vector base plus the texture residual:
+
+* the base is the regions (fitted outlines, edge widths) and a coarse lattice
+  of gradation features with fitted colours (:data:`BASE_T_SUPER`, no
+  curvilinear pairs, coarse colour steps), the same for every ``Q``;
+* ``Q`` sets the detail texture's AVIF quality (``tpsv.codec.detail.avif_quality``).
+
+Why the split is fixed rather than searched per image: on the four samples
+a richer vector base never paid for its bytes once the residual is coded by
+AVIF (docs/DESIGN.md, "Rate control", for the measurements), while a fixed
+base makes bytes and PSNR rise with ``Q`` (the texture's quality alone
+changes) and makes ``--target-psnr`` / ``--max-bytes`` cheap: the base is
+built once and only the texture is coded again while ``Q`` is searched.
+
+Without the detail layer (``--no-detail``) ``Q`` sets the vector model
+itself: lattice fineness (``T_super``), curvilinear pairs (``T_canny``) and
+colour steps, from :func:`vector_params`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from .. import codec, metrics
+from ..errors import TpsvError
+from ..model import Params
+from ..render.raster import render
+from . import detail as detail_layer
+from .vectorize import Candidates, VectorizeResult, build_geometry, label_map, scheme_params
+
+#: The default quality: at least 32 dB on every bundled sample (README, "Quality").
+DEFAULT_QUALITY = 75
+MIN_QUALITY, MAX_QUALITY = 1, 100
+#: The vector base under the detail layer: the coarsest lattice, no pairs, coarse colours.
+BASE_T_CANNY = 1e9
+BASE_T_SUPER = 1e9
+BASE_STEPS = (16, 16)
+
+
+def vector_params(quality: int) -> dict:
+    """Vector-only settings for ``quality``: ``t_canny``, ``t_super``, ``l_step``, ``ab_step``.
+
+    ``T_super`` falls geometrically from 400 (Q 1) to 2 (Q 100), so the
+    lattice only gets finer; curvilinear pairs come in above Q 60 with a
+    falling ``T_canny``; colour steps go from 16 to 1.
+    """
+    q = (int(quality) - 1) / 99.0
+    t_super = float(400.0 * (2.0 / 400.0) ** q)
+    t_canny = 1e9 if quality <= 60 else float(160.0 * (40.0 / 160.0) ** ((quality - 60) / 40.0))
+    l_step = int(np.clip(round(16 * (1.0 / 16.0) ** q), 1, 16))
+    ab_step = int(np.clip(round(16 * (2.0 / 16.0) ** q), 1, 16))
+    return dict(t_canny=t_canny, t_super=t_super, l_step=l_step, ab_step=ab_step)
+
+
+def check_quality(quality) -> int:
+    q = int(quality)
+    if not MIN_QUALITY <= q <= MAX_QUALITY:
+        raise TpsvError(f"quality {quality} not in {MIN_QUALITY}..{MAX_QUALITY}")
+    return q
+
+
+class _Trials:
+    """Encodings at several qualities of one image, each made once (the search reuses them)."""
+
+    def __init__(self, rgb, geometry, params: Params, detail: bool, device: str):
+        self.rgb = rgb
+        self.detail = detail
+        self.device = device
+        self.geometry = geometry
+        self.params = params
+        self.cands: dict = {}  # colour steps -> Candidates (their caches assume fixed steps)
+        self.base = None
+        self.done: dict = {}  # quality -> (data, model, mse)
+
+    def _base(self):
+        if self.base is None:
+            ev = self._candidates(*BASE_STEPS).evaluate(BASE_T_CANNY, BASE_T_SUPER, final=True)
+            shown = render(ev.model, device=self.device)
+            self.base = (ev, shown, detail_layer.residual_texels(self.rgb, shown))
+        return self.base
+
+    def _candidates(self, l_step: int, ab_step: int) -> Candidates:
+        key = (l_step, ab_step)
+        if key not in self.cands:
+            p = replace(self.params, l_step=l_step, ab_step=ab_step)
+            self.cands[key] = Candidates(self.rgb, self.geometry, p, device=self.device)
+        return self.cands[key]
+
+    def __call__(self, quality: int):
+        if quality in self.done:
+            return self.done[quality]
+        if self.detail:
+            ev, shown, texels = self._base()
+            coded = detail_layer.code_texels(texels, quality)
+            model = replace(_stamped(ev.model, quality),
+                            detail=detail_layer.make_detail(ev.model, texels, quality, coded))
+            data = codec.encode(model)
+            out = (data, codec.decode(data), metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1])))
+        else:
+            v = vector_params(quality)
+            ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True)
+            data = codec.encode(_stamped(ev.model, quality))
+            out = (data, codec.decode(data), ev.mse)
+        self.done[quality] = out
+        return out
+
+
+def _stamped(model, quality: int):
+    """``model`` with the quality it was made at recorded in its params (``extra["quality"]``; ``tpsv info``)."""
+    return replace(model, params=replace(model.params, extra={**model.params.extra, "quality": int(quality)}))
+
+
+def _psnr(mse: float) -> float:
+    return float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
+
+
+def encode_quality(
+    rgb: np.ndarray,
+    labels: np.ndarray | None = None,
+    *,
+    quality: int | None = None,
+    target_psnr: float | None = None,
+    max_bytes: int | None = None,
+    detail: bool = True,
+    seed: int = 0,
+    params: Params | None = None,
+    device: str = "cpu",
+    outlines: str = "fitted",
+) -> VectorizeResult:
+    """Vectorise at a quality, or at the lowest quality that reaches a PSNR, or the highest within a size.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    labels : ndarray (H, W) int, optional
+        Label map; segmented automatically when absent.
+    quality : int, optional
+        1-100 (default :data:`DEFAULT_QUALITY` unless a target is given).
+    target_psnr : float, optional
+        The lowest quality whose PSNR (scale 1, as decoded) is at least this;
+        the highest quality when none reaches it (``result.reached`` False).
+    max_bytes : int, optional
+        The highest quality whose file is at most this many bytes
+        (:class:`TpsvError` when even quality 1 is larger).
+    detail : bool
+        With the texture detail layer (else the pure vector image).
+    seed : int
+        Seed of the automatic segmentation.
+    params : Params, optional
+        Kernel size and smoothing (default :func:`scheme_params`).
+    device : str
+        Warp device of the renders.
+    outlines : {'fitted', 'traced'}
+        As :func:`tpsv.encode.vectorize.vectorize`.
+
+    Returns
+    -------
+    VectorizeResult
+        With ``quality`` and ``reached`` set.
+    """
+    t0 = time.perf_counter()
+    if sum(v is not None for v in (quality, target_psnr, max_bytes)) > 1:
+        raise TpsvError("give one of quality, target PSNR and maximum bytes")
+    if target_psnr is not None and not np.isfinite(target_psnr):
+        raise TpsvError(f"target PSNR {target_psnr} is not a finite number")
+    if max_bytes is not None and int(max_bytes) < 1:
+        raise TpsvError(f"maximum bytes {max_bytes} is not positive")
+    if quality is not None:
+        quality = check_quality(quality)
+    if outlines not in ("fitted", "traced"):
+        raise TpsvError(f"outlines {outlines!r} is not fitted or traced")
+    geometry = build_geometry(label_map(rgb, labels, seed), rgb if outlines == "fitted" else None)
+    trials = _Trials(rgb, geometry, params or scheme_params(), detail, device)
+    reached = True
+    if target_psnr is not None:
+        q = _lowest(lambda k: _psnr(trials(k)[2]) >= target_psnr)
+        reached = q is not None
+        q = MAX_QUALITY if q is None else q
+    elif max_bytes is not None:
+        q = _highest(lambda k: len(trials(k)[0]) <= int(max_bytes))
+        if q is None:
+            raise TpsvError(f"no quality fits in {int(max_bytes)} bytes: the smallest file is "
+                            f"{len(trials(MIN_QUALITY)[0])} bytes (quality 1)")
+    else:
+        q = DEFAULT_QUALITY if quality is None else quality
+    data, model, mse = trials(q)
+    return VectorizeResult(model=model, data=data, psnr=_psnr(mse), mse=mse, seconds=time.perf_counter() - t0,
+                           history=[(k, len(v[0]), _psnr(v[2])) for k, v in sorted(trials.done.items())],
+                           quality=q, reached=reached)
+
+
+def _lowest(ok) -> int | None:
+    """The lowest quality for which ``ok`` holds (assumed monotonic), or None."""
+    if not ok(MAX_QUALITY):
+        return None
+    lo, hi = MIN_QUALITY - 1, MAX_QUALITY  # ok(hi) holds; ok(lo) taken as false
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if ok(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _highest(ok) -> int | None:
+    """The highest quality for which ``ok`` holds (assumed monotonic: true up to a point), or None."""
+    if not ok(MIN_QUALITY):
+        return None
+    first_bad = _lowest(lambda k: not ok(k))
+    return MAX_QUALITY if first_bad is None else first_bad - 1

@@ -1,0 +1,164 @@
+"""The detail layer on a Warp device: texture residual added to rendered pixels.
+
+One thread per output pixel: its region's rest frame maps the pixel's
+``(S, T)`` to a texture position, the texture is sampled there with
+Catmull-Rom weights (interpolating: at scale 1 a pixel centre lands on its
+texel and gets it exactly; magnified, the texture is smooth, C1), and the
+residual (stored as Y, Cb, Cr) is added to the sRGB colour, clamped to
+``[0, 1]``. A region in luma mode adds only the residual's Y, the same to
+all three channels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..model import DETAIL_GAIN, DETAIL_YCC, DETAIL_ZERO
+from .rasterise import _BAND_MIN, _as_region_map, _as_st_map, _launch_banded
+
+wp.set_module_options({"enable_backward": False, "fast_math": True})
+
+#: (Y, Cb, Cr) residual -> sRGB residual.
+_FROM_YCC = wp.constant(wp.mat33f(*np.linalg.inv(DETAIL_YCC).astype(np.float32).ravel()))
+
+
+@wp.func
+def _cr(t: float):
+    """Catmull-Rom weights of the four texels around a position ``t`` past the second."""
+    t2 = t * t
+    t3 = t2 * t
+    return wp.vec4f(
+        -0.5 * t3 + t2 - 0.5 * t,
+        1.5 * t3 - 2.5 * t2 + 1.0,
+        -1.5 * t3 + 2.0 * t2 + 0.5 * t,
+        0.5 * t3 - 0.5 * t2,
+    )
+
+
+@wp.func
+def _sample(tex: wp.array2d(dtype=wp.vec3f), x: float, y: float):
+    """Catmull-Rom sample at texture position (x, y) (texel centres at half-integers), edges clamped."""
+    th = tex.shape[0]
+    tw = tex.shape[1]
+    fx = x - 0.5
+    fy = y - 0.5
+    ix = int(wp.floor(fx))
+    iy = int(wp.floor(fy))
+    wx = _cr(fx - float(ix))
+    wy = _cr(fy - float(iy))
+    acc = wp.vec3f(0.0, 0.0, 0.0)
+    for j in range(4):
+        yy = wp.clamp(iy - 1 + j, 0, th - 1)
+        row = wp.vec3f(0.0, 0.0, 0.0)
+        for i in range(4):
+            xx = wp.clamp(ix - 1 + i, 0, tw - 1)
+            row = row + wx[i] * tex[yy, xx]
+        acc = acc + wy[j] * row
+    return acc
+
+
+@wp.func
+def _detail(region: int, st: wp.vec2f, frame: wp.array(dtype=wp.vec2f), mode: wp.array(dtype=wp.int32),
+            tex: wp.array2d(dtype=wp.vec3f)):
+    m = mode[region]
+    if m == 0:
+        return wp.vec3f(0.0, 0.0, 0.0)
+    p = frame[3 * region] + st[0] * frame[3 * region + 1] + st[1] * frame[3 * region + 2]
+    d = _sample(tex, p[0], p[1])
+    if m == 2:
+        return wp.vec3f(d[0], d[0], d[0])
+    return _FROM_YCC * d
+
+
+@wp.func
+def _saturate(c: wp.vec3f):
+    return wp.vec3f(wp.clamp(c[0], 0.0, 1.0), wp.clamp(c[1], 0.0, 1.0), wp.clamp(c[2], 0.0, 1.0))
+
+
+@wp.kernel
+def _add_detail(
+    region: wp.array2d(dtype=wp.int32),
+    stmap: wp.array2d(dtype=wp.vec2f),
+    frame: wp.array(dtype=wp.vec2f),
+    mode: wp.array(dtype=wp.int32),
+    tex: wp.array2d(dtype=wp.vec3f),
+    y0: int,
+    out: wp.array2d(dtype=wp.vec3f),
+):
+    yy, x = wp.tid()
+    y = yy + y0
+    r = region[y, x]
+    if r >= 0:
+        out[y, x] = _saturate(out[y, x] + _detail(r, stmap[y, x], frame, mode, tex))
+
+
+@wp.kernel
+def _add_detail_list(
+    region: wp.array2d(dtype=wp.int32),
+    stmap: wp.array2d(dtype=wp.vec2f),
+    pixels: wp.array(dtype=wp.int32),
+    width: int,
+    frame: wp.array(dtype=wp.vec2f),
+    mode: wp.array(dtype=wp.int32),
+    tex: wp.array2d(dtype=wp.vec3f),
+    out: wp.array2d(dtype=wp.vec3f),
+):
+    p = pixels[wp.tid()]
+    y = p / width
+    x = p - y * width
+    r = region[y, x]
+    if r >= 0:
+        out[y, x] = _saturate(out[y, x] + _detail(r, stmap[y, x], frame, mode, tex))
+
+
+class DeviceDetail:
+    """A model's detail layer uploaded to a device (once per model).
+
+    Parameters
+    ----------
+    detail : tpsv.model.Detail
+    device : str
+    """
+
+    def __init__(self, detail, device: str):
+        self.device = device
+        res = (detail.texels.astype(np.float32) - DETAIL_ZERO) / DETAIL_GAIN
+        self.tex = wp.array(np.ascontiguousarray(res), dtype=wp.vec3f, device=device)
+        self.frame = wp.array(np.ascontiguousarray(detail.frame, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=device)
+        self.mode = wp.array(np.asarray(detail.mode, np.int32), dtype=wp.int32, device=device)
+
+
+def add_detail(dd: DeviceDetail, out: wp.array, region, st, pixels=None, threads: int | None = None) -> None:
+    """Add the detail layer to ``out`` (sRGB, device frame) in place.
+
+    Parameters
+    ----------
+    dd : DeviceDetail
+    out : wp.array2d(vec3f) (H, W)
+    region, st : region and ``(S, T)`` maps (ndarray or device arrays, as :func:`rasterise` takes)
+    pixels : ndarray of int, optional
+        Only these flat pixel indices (default: every pixel).
+    threads : int, optional
+        Host threads on the CPU device.
+    """
+    dev = dd.device
+    reg = _as_region_map(region, dev)
+    stm = _as_st_map(st, dev)
+    H, W = reg.shape
+    if pixels is None:
+        def launch(r0, r1):
+            wp.launch(_add_detail, dim=(r1 - r0, W), inputs=[reg, stm, dd.frame, dd.mode, dd.tex, r0, out], device=dev)
+
+        _launch_banded(_add_detail, H, H * W >= _BAND_MIN, dev, threads, launch)
+        return
+    pix = np.ascontiguousarray(pixels, np.int32)
+    if pix.size == 0:
+        return
+    pix_d = wp.array(pix, dtype=wp.int32, device=dev)
+
+    def launch_list(a, b):
+        wp.launch(_add_detail_list, dim=b - a, inputs=[reg, stm, pix_d[a:b], int(W), dd.frame, dd.mode, dd.tex, out],
+                  device=dev)
+
+    _launch_banded(_add_detail_list, pix.size, pix.size >= _BAND_MIN, dev, threads, launch_list)
