@@ -12,6 +12,7 @@ import numpy as np
 
 from tpsv.image import read_image, write_image
 from tpsv.render.raster import render
+from tpsv.encode.rate import DEFAULT_QUALITY, encode_quality
 from tpsv.encode.vectorize import vectorize
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -29,13 +30,37 @@ def side_by_side(images: list[np.ndarray], height: int, gap: int = 6) -> np.ndar
 
 
 def hero() -> None:
+    """Input crop, its .tpsv at the default quality at scale 1 and at 4x."""
     rgb = read_image(ROOT / "samples" / "chelsea.png")
     crop = np.ascontiguousarray(rgb[90:186, 150:278])  # the left eye, 128x96
-    result = vectorize(crop, search=True, iterations=8, seed=0)
+    result = encode_quality(crop)
     flat = render(result.model)
     big = render(result.model, scale=4)
     write_image(IMG / "hero.png", side_by_side([crop, flat, big], height=384))
-    print(f"hero: {len(result.model.features)} features, {len(result.data)} bytes, PSNR {result.psnr:.2f} dB")
+    print(f"hero: quality {result.quality}, {len(result.data)} bytes "
+          f"({8 * len(result.data) / crop.shape[0] / crop.shape[1]:.2f} bpp), PSNR {result.psnr:.2f} dB")
+
+
+def detail() -> None:
+    """chelsea: input, the pure vector image of the paper's search, the default quality; 1x and a 4x crop."""
+    from tpsv.image import read_labels
+
+    rgb = read_image(ROOT / "samples" / "chelsea.png")
+    lab = read_labels(ROOT / "samples" / "chelsea-labels.png")
+    searched = vectorize(rgb, lab, iterations=20, seed=0)
+    default = encode_quality(rgb, lab)
+    rows = []
+    y0, x0, h, w = 60, 120, 60, 100  # the left eye
+    for im in (rgb, render(searched.model), render(default.model)):
+        rows.append(im)
+    crops = [cv2.resize(rgb[y0:y0 + h, x0:x0 + w], (4 * w, 4 * h), interpolation=cv2.INTER_CUBIC),
+             render(searched.model, scale=4)[4 * y0:4 * (y0 + h), 4 * x0:4 * (x0 + w)],
+             render(default.model, scale=4)[4 * y0:4 * (y0 + h), 4 * x0:4 * (x0 + w)]]
+    write_image(IMG / "detail.png", side_by_side(rows, height=300))
+    write_image(IMG / "detail-4x.png", side_by_side(crops, height=240))
+    px = rgb.shape[0] * rgb.shape[1]
+    print(f"detail: search {len(searched.data)} B ({8 * len(searched.data) / px:.2f} bpp) {searched.psnr:.2f} dB; "
+          f"quality {DEFAULT_QUALITY} {len(default.data)} B ({8 * len(default.data) / px:.2f} bpp) {default.psnr:.2f} dB")
 
 
 def edges() -> None:
@@ -87,5 +112,6 @@ def soft_edges() -> None:
 if __name__ == "__main__":
     IMG.mkdir(parents=True, exist_ok=True)
     hero()
+    detail()
     edges()
     soft_edges()

@@ -1,5 +1,6 @@
 """The benchmark behind ``tpsv bench``: timing and quality tables in the style of
-the paper's Tables I-III, a rate-distortion plot, and the magnification test.
+the paper's Tables I-III, a rate-distortion plot, the rate-distortion table of
+tpsv against JPEG and WebP (:mod:`tpsv.bench.rd`), and the magnification test.
 
 Every figure here is measured when the benchmark runs; nothing is copied in.
 """
@@ -14,6 +15,7 @@ import cv2
 import numpy as np
 
 from . import baseline
+from . import rd as rate_distortion
 from .. import metrics
 from .. import tps
 from ..errors import TpsvError
@@ -287,9 +289,15 @@ def bench_image(
     grid: int = 4,
     seed: int = 0,
     magnify: int = 4,
+    rd: bool = True,
     step: Callable[[str], None] | None = None,
 ) -> dict:
-    """All benchmark figures for one image (see the module docstring)."""
+    """All benchmark figures for one image (see the module docstring).
+
+    With ``rd`` the result also has ``"rd"``, the rate-distortion table of
+    :func:`tpsv.bench.rd.rd_table` (tpsv with and without the detail layer,
+    JPEG, WebP and BD-PSNR); reported steps are then also ``"rd"``.
+    """
     from ..encode import search as selection
 
     tick = step or (lambda label: None)
@@ -302,7 +310,8 @@ def bench_image(
     optimum = _point(rgb, len(res.data), res.mse, t_canny=res.model.params.t_canny, t_super=res.model.params.t_super)
 
     # The same geometry and precomputed extractor serve the initial guess and the grid.
-    geometry = build_geometry(labels if labels is not None else _auto_labels(rgb, seed), rgb)
+    label_map = labels if labels is not None else _auto_labels(rgb, seed)
+    geometry = build_geometry(label_map, rgb)
     extractor = FeatureExtractor(rgb, geometry.index)
     c0, s0 = selection.initial_thresholds(rgb, geometry.index)
     base = res.model.params
@@ -330,6 +339,11 @@ def bench_image(
     render_seconds = time.perf_counter() - t0
     jp = jpeg_table(rgb, len(res.data))
     tick("jpeg")
+    rd_points = None
+    if rd:
+        # the label map the search used: rd_table would otherwise segment with its own seed
+        rd_points = rate_distortion.rd_table(rgb, label_map, device=device)
+        tick("rd")
     timing = timing_table(model, device)
     tick("timing")
     mag = magnification_table(rgb, magnify, device) if min(h, w) >= 8 * magnify else None
@@ -354,6 +368,7 @@ def bench_image(
             {"t_canny": t.t_canny, "t_super": t.t_super, "E": t.E, "C": t.C, "w": t.w} for t in res.history
         ],
         "jpeg": jp,
+        **({"rd": rd_points} if rd else {}),
         "timing": timing,
         "magnification": mag,
         "device_check": dev,
@@ -418,6 +433,10 @@ def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
         for p in (r["initial"], r["optimal"], r["brute_force"], r["jpeg"]["best_w"], r["jpeg"]["same_bytes"]):
             cells.append(f"{_fmt(p['psnr'])} {_fmt(p['w'], '.3g')} {_fmt(p['bpp'])}")
         out.append(f"{r['name']:<12}" + "".join(f"{c:>26}" for c in cells))
+    for r in results:
+        if r.get("rd"):
+            out.append("")
+            out.append(rate_distortion.rd_table_text(r["name"], r["rd"]))
     out.append("")
     out.append("Magnification 4x (area-downscaled, then upscaled): PSNR / SSIM / GMSD / edge sharpness")
     out.append(f"{'image':<12}{'tpsv':>31}{'bicubic':>31}{'lanczos':>31}{'original sharpness':>20}")
@@ -468,13 +487,28 @@ def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
     return "\n".join(out)
 
 
+#: Colours (BGR) of the rate-distortion table's curves in :func:`rd_plot_png`, and their legend names.
+RD_STYLE = {
+    "tpsv": ((30, 30, 30), "tpsv"),
+    "tpsv_no_detail": ((180, 0, 180), "tpsv no-detail"),
+    "jpeg": ((200, 80, 0), "JPEG"),
+    "webp": ((0, 140, 230), "WebP"),
+}
+
+
 def rd_plot_png(result: dict, size: tuple[int, int] = (640, 420)) -> bytes:
-    """PSNR against bpp: tpsv (grid and search points) and the JPEG sweep, as PNG bytes."""
+    """PSNR against bpp: tpsv (grid and search points) and the JPEG sweep, as PNG bytes.
+
+    When ``result`` has a rate-distortion table (``"rd"``), its curves are drawn
+    too: tpsv with and without the detail layer, JPEG and WebP, with a legend.
+    """
     W, H = size
     img = np.full((H, W, 3), 255, np.uint8)
     tp = [(p["bpp"], p["psnr"]) for p in result["grid"] + [result["optimal"], result["initial"]]]
     jp = [(p["bpp"], p["psnr"]) for p in result["jpeg"]["sweep"]]
-    pts = [p for p in tp + jp if np.isfinite(p[1])]
+    rd_curves = {k: [(p["bpp"], p["psnr"]) for p in v] for k, v in (result.get("rd") or {}).get("curves", {}).items()
+                 if k in RD_STYLE}
+    pts = [p for p in tp + jp + [q for c in rd_curves.values() for q in c] if np.isfinite(p[1])]
     if not pts:
         raise TpsvError("nothing to plot")
     x0, x1 = 0.0, max(p[0] for p in pts) * 1.05
@@ -499,6 +533,14 @@ def rd_plot_png(result: dict, size: tuple[int, int] = (640, 420)) -> bytes:
     jp_sorted = sorted(p for p in jp if np.isfinite(p[1]))
     for a, b in zip(jp_sorted, jp_sorted[1:]):
         cv2.line(img, xy(*a), xy(*b), (200, 80, 0), 2, cv2.LINE_AA)
+    # the rate-distortion curves under the search points, so those stay visible
+    for k, curve in rd_curves.items():
+        colour = RD_STYLE[k][0]
+        c = sorted(p for p in curve if np.isfinite(p[1]))
+        for a, b in zip(c, c[1:]):
+            cv2.line(img, xy(*a), xy(*b), colour, 1, cv2.LINE_AA)
+        for p in c:
+            cv2.drawMarker(img, xy(*p), colour, cv2.MARKER_SQUARE, 7, 1, cv2.LINE_AA)
     for p in tp:
         if np.isfinite(p[1]):
             cv2.circle(img, xy(*p), 4, (0, 0, 220), -1, cv2.LINE_AA)
@@ -506,5 +548,13 @@ def rd_plot_png(result: dict, size: tuple[int, int] = (640, 420)) -> bytes:
     cv2.circle(img, xy(o["bpp"], o["psnr"]), 8, (0, 160, 0), 2, cv2.LINE_AA)
     cv2.putText(img, f"{result['name']}: tpsv (red, green = searched optimum), JPEG (blue)", (L, 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+    if rd_curves:
+        # legend in the lower right, where PSNR curves rarely go (they rise with bpp)
+        for i, k in enumerate(k for k in RD_STYLE if k in rd_curves):
+            colour, label = RD_STYLE[k]
+            y = H - B - 10 - 16 * (len(rd_curves) - 1 - i)
+            x = W - R - 150
+            cv2.line(img, (x, y - 4), (x + 20, y - 4), colour, 2, cv2.LINE_AA)
+            cv2.putText(img, f"Q sweep: {label}", (x + 26, y), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
     ok, buf = cv2.imencode(".png", img)
     return buf.tobytes()

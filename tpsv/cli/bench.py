@@ -45,13 +45,14 @@ def _outputs(out_dir: str | None, plotted: list[str]) -> list[tuple[str, Path]]:
     return [("--out", out / "bench.json")] + [("--out", out / f"rd-{name}.png") for name in plotted]
 
 
-def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges: int) -> tuple[list[dict], dict | None]:
-    """The benchmark of each input (a .tpsv: its timing tables only), then the edge
-    table once (``edges`` variants, 0: none; only when some input is a raster image),
-    with a progress bar on a terminal."""
+def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges: int,
+         rd: bool = True) -> tuple[list[dict], dict | None]:
+    """The benchmark of each input (a .tpsv: its timing tables only; ``rd``: with the
+    rate-distortion table), then the edge table once (``edges`` variants, 0: none;
+    only when some input is a raster image), with a progress bar on a terminal."""
     if all(model for *_, model in inputs):
         edges = 0
-    stages = ["search", "initial", "grid", "jpeg", "timing", "magnify", "edits"]
+    stages = ["search", "initial", "grid", "jpeg"] + (["rd"] if rd else []) + ["timing", "magnify", "edits"]
     results = []
     with progress_bar(ctx, len(inputs) * len(stages) + (1 if edges else 0), "bench") as bar:
         for name, path, lab_path, model in inputs:
@@ -63,7 +64,7 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
             rgb = read_image(path)
             labels = read_labels(lab_path, shape=rgb.shape[:2]) if lab_path else None
             results.append(b.bench_image(name, rgb, labels, device=device, iterations=iterations, grid=grid,
-                                         seed=seed, step=(lambda s: bar.update(1)) if bar else None))
+                                         seed=seed, rd=rd, step=(lambda s: bar.update(1)) if bar else None))
         edge = b.edge_table(edges, iterations=iterations, device=device) if edges else None
         if bar and edges:
             bar.update(1)
@@ -81,17 +82,26 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--edges", "edge_variants", type=click.IntRange(0, 20), default=3, show_default=True,
               help="Variants of the synthetic shapes in the edge table (0: skip it).")
+@click.option("--codecs", is_flag=True, default=False,
+              help="Also compare detail-texture codecs (own DCT, WebP, AVIF colour, AVIF planes) on each image.")
+@click.option("--rd/--no-rd", default=True, show_default=True,
+              help="The rate-distortion table: tpsv --quality sweep with and without detail, JPEG, WebP, BD-PSNR.")
 @device_option
 @json_option
 @click.pass_context
-def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, device, as_json):
+def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, rd, device, as_json):
     """Benchmark IMAGES (default: the bundled samples, with their label maps).
 
     An IMAGE may also be a .tpsv file: then only its timing tables are made.
 
     Prints Table I (construction + solve + rasterisation: global CPU solve,
     localised without and with packing), Table II (PSNR, w and bpp of the initial
-    guess, the searched optimum, a brute-force grid and JPEG), the 4x
+    guess, the searched optimum, a brute-force grid and JPEG), the
+    rate-distortion table per image (unless --no-rd: bpp and PSNR of tpsv
+    --quality 10, 30, 50, 75, 90 with and without the detail layer, and of
+    OpenCV's JPEG and WebP at qualities 5-95, then BD-PSNR of each tpsv curve
+    against JPEG and WebP over 0.25-2 bpp and over all rates both reach;
+    --out's plots draw these curves too), the 4x
     magnification comparison against bicubic and Lanczos (PSNR, SSIM, GMSD),
     the edge table (synthetic shapes rendered at 8x against the analytic
     picture, PSNR and GMSD next to bicubic and Lanczos; once per run) and CPU
@@ -101,9 +111,16 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, device, a
     with claim_outputs([p for _, path, lab, _ in inputs for p in (path, lab)],
                        *_outputs(out_dir, [name for name, _, _, model in inputs if not model])) as out:
         device = device_for(ctx, device)
-        results, edges = _run(ctx, inputs, device, iterations, grid, seed, edge_variants)
+        results, edges = _run(ctx, inputs, device, iterations, grid, seed, edge_variants, rd)
         report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results,
                   "edges": edges}
+        if codecs:
+            from ..bench.codecs import detail_codec_table
+
+            report["detail_codecs"] = {
+                name: detail_codec_table(read_image(path), read_labels(lab, shape=read_image(path).shape[:2])
+                                         if lab else None, device=device)
+                for name, path, lab, model in inputs if not model}
         if out_dir:
             out.write(Path(out_dir) / "bench.json", json.dumps(report, indent=2, default=float).encode())
             for r in results:
@@ -113,5 +130,10 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, device, a
         click.echo(json.dumps(report, indent=2, default=float))
     else:
         click.echo(b.tables(results, device, edges))
+        if codecs:
+            from ..bench.codecs import detail_codec_text
+
+            for name, table in report["detail_codecs"].items():
+                click.echo("\n" + detail_codec_text(name, table))
         if out_dir:
             say(ctx, f"wrote {out_dir}/bench.json and rate-distortion plots")
