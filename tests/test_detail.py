@@ -155,6 +155,16 @@ def _bigger_ispe(image: bytes, w: int, h: int) -> bytes:
     return image[:at + 8] + struct.pack(">II", w, h) + image[at + 16:]
 
 
+def test_a_corrupt_image_is_refused_quietly(textured, capfd):
+    """libaom's and OpenCV's own complaints do not reach stderr: the one line is ours."""
+    base = _detail_map(textured.data)
+    image = bytearray(base["image"])
+    image[-40:] = bytes(40)
+    capfd.readouterr()
+    _reject(_with_detail(textured.data, {**base, "image": bytes(image)}), "cannot be decoded|decodes to")
+    assert capfd.readouterr().err == ""
+
+
 def test_hostile_detail_sections_are_refused(textured):
     data = textured.data
     base = _detail_map(data)

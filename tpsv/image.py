@@ -463,7 +463,7 @@ def _check_budget(header: ImageHeader, path, max_bits: int) -> None:
 
 
 @contextlib.contextmanager
-def _quiet_stderr():
+def quiet_stderr():
     """Keep OpenCV's log and the C libraries' direct prints off stderr for one call.
 
     OpenCV's log level is restored afterwards. libpng and libjpeg write to file
@@ -529,7 +529,7 @@ def _decode(data: bytes, header: ImageHeader, path, flags: int) -> np.ndarray:
     """Decode quietly with OpenCV and put upright; one line for any failure."""
     if header.truncated:
         raise TpsvError(f"{path}: truncated or corrupt {header.format} data")
-    with _quiet_stderr():
+    with quiet_stderr():
         try:
             img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
         except cv2.error:

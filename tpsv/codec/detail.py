@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..errors import TpsvError, TpsvFormatError
+from ..image import quiet_stderr
 from ..model import DETAIL_LUMA, Detail
 from . import layout
 from . import sections
@@ -111,10 +112,11 @@ def decode_texels(data: bytes, width: int, height: int) -> np.ndarray:
     for w, h in image_sizes(data):
         if w > width or h > 3 * height:
             raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture is {width}x{3 * height}")
-    try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
+    with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
     if img is None:
         raise TpsvFormatError("section detail: the AVIF image cannot be decoded")
     if img.dtype != np.uint16 or img.shape != (3 * height, width):
