@@ -115,7 +115,7 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     d = model.detail
     assert d.texels.dtype == np.uint16 and d.texels.shape == (model.height, model.width, 3)
     assert d.payload[4:12] == b"ftypavif"
-    assert detail_codec.image_sizes(d.payload) == [(model.width, 3 * model.height)]
+    assert detail_codec.image_sizes(d.payload) == [(model.width, 3 * model.height)]  # wider than tall: stacked
     again = codec.decode(codec.encode(model))
     assert again.detail == d
     assert codec.encode(model) == textured.data
@@ -123,6 +123,14 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     sizes = codec.section_sizes(textured.data)
     assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
     assert struct.unpack_from("<HH", textured.data, 8) == (3, layout.FLAG_DETAIL)
+
+
+def test_a_tall_texture_puts_its_planes_side_by_side():
+    texels = (np.arange(7 * 3 * 3) % 1024).astype(np.uint16).reshape(7, 3, 3)
+    payload = detail_codec.encode_texels(texels, 100)
+    assert detail_codec.image_sizes(payload) == [(9, 7)]
+    back = detail_codec.decode_texels(payload, 3, 7)
+    assert back.shape == (7, 3, 3) and np.abs(back.astype(int) - texels).max() <= 2
 
 
 def _detail_map(data: bytes) -> dict:

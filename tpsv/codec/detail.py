@@ -4,8 +4,9 @@ Layout (``docs/FORMAT.md``, "Detail"): a msgpack map, zstd-framed like every
 section, with ``codec`` ("avif"), ``width`` and ``height`` of the texture,
 ``quality`` (1-100), ``frame`` (``R x 6`` little-endian int32, 1/16 px:
 origin, d/dS, d/dT of each region's rest frame), ``mode`` (``R`` bytes) and
-``image`` (a monochrome AVIF file, 10 bits, ``width x 3 height``: the
-residual's Y, Cb and Cr planes one below the other; OpenCV's AVIF writer
+``image`` (a monochrome AVIF file, 10 bits: the residual's Y, Cb and Cr
+planes one below the other, ``width x 3 height``, or side by side when the
+texture is taller than wide; OpenCV's AVIF writer
 subsamples the chroma of colour images 2:1, which capped the PSNR of red on
 black at 37 dB, while planes in one grey image keep every texel).
 
@@ -49,11 +50,24 @@ def avif_quality(quality: int) -> int:
     return int(round(1 + (int(quality) - 1) * (MAX_AVIF_QUALITY - 1) / 99))
 
 
+def plane_axis(width: int, height: int) -> int:
+    """Axis along which the three planes are stacked: 0 (one below the other) unless the
+    texture is taller than wide, then 1 (side by side). Along its shorter side a texture
+    of at most 40 Mpx stays under libavif's default 32768-px side limit three times over."""
+    return 0 if height <= width else 1
+
+
+def image_shape(width: int, height: int) -> tuple[int, int]:
+    """(rows, columns) of the AVIF image of a ``width x height`` texture."""
+    return (3 * height, width) if plane_axis(width, height) == 0 else (height, 3 * width)
+
+
 def encode_texels(texels: np.ndarray, quality: int) -> bytes:
     """An AVIF file of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked) at tpsv ``quality``."""
     params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, AVIF_SPEED,
               cv2.IMWRITE_AVIF_DEPTH, DEPTH]
-    planes = np.ascontiguousarray(np.concatenate([texels[..., k] for k in range(3)], axis=0))
+    h, w = texels.shape[:2]
+    planes = np.ascontiguousarray(np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h)))
     try:
         ok, buf = cv2.imencode(".avif", planes, params)
     except cv2.error:
@@ -109,9 +123,10 @@ def image_sizes(data: bytes) -> list[tuple[int, int]]:
 
 def decode_texels(data: bytes, width: int, height: int) -> np.ndarray:
     """The texels (height, width, 3) uint16 of an AVIF file (planes stacked), checked before and after decoding."""
+    rows, cols = image_shape(width, height)
     for w, h in image_sizes(data):
-        if w > width or h > 3 * height:
-            raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture is {width}x{3 * height}")
+        if w > cols or h > rows:
+            raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture's image is {cols}x{rows}")
     with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
         try:
             img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -119,12 +134,12 @@ def decode_texels(data: bytes, width: int, height: int) -> np.ndarray:
             img = None
     if img is None:
         raise TpsvFormatError("section detail: the AVIF image cannot be decoded")
-    if img.dtype != np.uint16 or img.shape != (3 * height, width):
+    if img.dtype != np.uint16 or img.shape != (rows, cols):
         raise TpsvFormatError(f"section detail: image decodes to {img.shape} {img.dtype}, "
-                              f"expected ({3 * height}, {width}) uint16")
+                              f"expected ({rows}, {cols}) uint16")
     if int(img.max(initial=0)) > 1023:
         raise TpsvFormatError("section detail: image is not 10-bit")
-    return np.ascontiguousarray(np.stack([img[k * height:(k + 1) * height] for k in range(3)], axis=-1))
+    return np.ascontiguousarray(np.stack(np.split(img, 3, axis=plane_axis(width, height)), axis=-1))
 
 
 def quantize_frame(frame: np.ndarray, n_regions: int) -> np.ndarray:
