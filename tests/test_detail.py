@@ -309,3 +309,13 @@ def test_cli_quality_options(tmp_path, small_png):
         r = CliRunner().invoke(main, ["vectorize", str(small_png), "-o", str(gone)] + bad)
         assert r.exit_code != 0 and match in r.output and not gone.exists()
         assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("module", ["tpsv.image", "tpsv.codec.detail", "tpsv.encode.rate", "tpsv.quiet"])
+def test_each_entry_module_imports_first(module):
+    """No import cycle: the codec's detail section needs the quiet decoder that image reading uses too."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr

@@ -28,21 +28,19 @@ Budgets
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
 import struct
-import sys
 import zlib
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from cv2.utils import logging as cv_logging
 
 from .codec.layout import MAX_SIDE
 from .errors import TpsvError
 from .fileio import read_bytes, write_bytes_atomic
+from .quiet import quiet_stderr
 
 #: Largest raster we accept (pixels): a 24 Mpx camera photo fits with margin.
 MAX_PIXELS = 40_000_000
@@ -460,35 +458,6 @@ def _check_budget(header: ImageHeader, path, max_bits: int) -> None:
         raise TpsvError(f"{path}: {header.bit_depth}-bit signed image; tpsv reads 8-bit images only")
     if header.bit_depth > max_bits:
         raise TpsvError(f"{path}: {header.bit_depth}-bit image; tpsv reads 8-bit images only")
-
-
-@contextlib.contextmanager
-def quiet_stderr():
-    """Keep OpenCV's log and the C libraries' direct prints off stderr for one call.
-
-    OpenCV's log level is restored afterwards. libpng and libjpeg write to file
-    descriptor 2 themselves, so that descriptor points at the null device
-    meanwhile (another thread's stderr output in that window is lost too; the
-    CLI decodes before it starts any).
-    """
-    level = cv_logging.getLogLevel()
-    cv_logging.setLogLevel(cv_logging.LOG_LEVEL_SILENT)
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:  # no stderr at all: nothing to protect
-        saved = None
-    try:
-        if saved is not None:
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, 2)
-            os.close(null)
-        yield
-    finally:
-        if saved is not None:
-            os.dup2(saved, 2)
-            os.close(saved)
-        cv_logging.setLogLevel(level)
 
 
 def _upright(img: np.ndarray, orientation: int) -> np.ndarray:

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from ..errors import TpsvError, TpsvFormatError
-from ..image import quiet_stderr
+from ..quiet import quiet_stderr
 from ..model import DETAIL_LUMA, Detail
 from . import layout
 from . import sections
