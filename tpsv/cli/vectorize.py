@@ -74,8 +74,6 @@ def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel
     if thresholds and any(v is not None for v in rated):
         raise TpsvError("--quality, --target-psnr and --max-bytes choose a quality; they do not go with "
                         "--search, --no-search, --canny, --super or --plain")
-    if thresholds and not detail:
-        detail = True  # the threshold modes are pure vector anyway
     rgb = read_image(image)
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
     params = scheme_params("paper" if plain else "tpsv", kernel_size=kernel_size, smoothing=smoothing)

@@ -10,14 +10,14 @@ default) the picture is a cheap vector base plus the texture residual:
 
 Why the split is fixed rather than searched per image: on the four samples
 a richer vector base never paid for its bytes once the residual is coded by
-AVIF (docs/DESIGN.md, "Rate control", for the measurements), while a fixed
+AVIF (docs/DESIGN.md, "Detail layer and rate control", for the measurements), while a fixed
 base makes bytes and PSNR rise with ``Q`` (the texture's quality alone
 changes) and makes ``--target-psnr`` / ``--max-bytes`` cheap: the base is
 built once and only the texture is coded again while ``Q`` is searched.
 
 Without the detail layer (``--no-detail``) ``Q`` sets the vector model
-itself: lattice fineness (``T_super``), curvilinear pairs (``T_canny``) and
-colour steps, from :func:`vector_params`.
+itself: lattice fineness (``T_super``) and colour steps, from
+:func:`vector_params`.
 """
 
 from __future__ import annotations
@@ -57,8 +57,10 @@ def vector_params(quality: int) -> dict:
     and 2 (:data:`VECTOR_STEPS`): at equal bytes a finer lattice beats finer
     colours (astronaut, ``T_super`` 10 at steps 16: 0.41 bpp, 24.97 dB;
     ``T_super`` 20 at steps 2/4: 0.47 bpp, 23.06 dB). No curvilinear pairs:
-    at every quality tried they cost more bytes than they gave
-    (docs/DESIGN.md, "Rate control").
+    switched on from Q 60 up (``T_canny`` 160 -> 40) they made chelsea's
+    curve jump from 0.1 to 4.4 bpp (35.9 dB) with no point between, and the
+    Monte Carlo search too mostly raises ``T_canny`` above every edge
+    (:mod:`tpsv.encode.vectorize`).
     """
     q = (int(quality) - 1) / 99.0
     t_super = float(70.0 * (4.0 / 70.0) ** q)
@@ -86,7 +88,8 @@ class _Trials:
         self.base = None
         self.done: dict = {}  # quality -> (data, model, mse)
 
-    def _base(self):
+    def vector_base(self):
+        """``(evaluation, render at scale 1, residual texels)`` of the vector base (made once)."""
         if self.base is None:
             ev = self._candidates(*BASE_STEPS).evaluate(BASE_T_CANNY, BASE_T_SUPER, final=True)
             shown = render(ev.model, device=self.device)
@@ -104,7 +107,7 @@ class _Trials:
         if quality in self.done:
             return self.done[quality]
         if self.detail:
-            ev, shown, texels = self._base()
+            ev, shown, texels = self.vector_base()
             coded = detail_layer.code_texels(texels, quality)
             model = replace(_stamped(ev.model, quality),
                             detail=detail_layer.make_detail(ev.model, texels, quality, coded))
