@@ -32,7 +32,9 @@ from ..errors import TpsvError
 from ..model import Params
 from ..render.raster import render
 from . import detail as detail_layer
-from .vectorize import Candidates, VectorizeResult, build_geometry, label_map, scheme_params
+from .features import FeatureExtractor
+from .vectorize import (Candidates, Evaluation, VectorizeResult, build_geometry, evaluate, label_map, make_model,
+                        scheme_params, stored_maps)
 
 #: The default quality: at least 32 dB on every bundled sample (README, "Quality").
 DEFAULT_QUALITY = 75
@@ -41,6 +43,14 @@ MIN_QUALITY, MAX_QUALITY = 1, 100
 BASE_T_CANNY = 1e9
 BASE_T_SUPER = 1e9
 BASE_STEPS = (16, 16)
+#: Iterations of the base's colour fit.
+BASE_FIT_ITERATIONS = 4
+
+
+def base_fit_sub(width: int, height: int) -> int:
+    """Every how many pixels (per axis) the base's colours are fitted: 2 up to 1 Mpx, then
+    so that about 2^18 pixels take part (memory and time stay bounded for large photos)."""
+    return max(2, int(np.ceil(np.sqrt(width * height / 2**18))))
 
 
 #: Colour steps (l_step, ab_step) of the pure vector image from each quality up.
@@ -89,11 +99,24 @@ class _Trials:
         self.done: dict = {}  # quality -> (data, model, mse)
 
     def vector_base(self):
-        """``(evaluation, render at scale 1, residual texels)`` of the vector base (made once)."""
+        """``(evaluation, render at scale 1, residual texels)`` of the vector base (made once).
+
+        Its colours are fitted on a subsampled lattice of pixels
+        (:func:`base_fit_sub`): the texture corrects what the fit leaves, so a
+        fit on every pixel bought 0.04 dB at the default quality on the
+        samples, for 1.5 times the time and, on a 2048x2048 photo, 39 s and
+        4.8 GB of peak memory.
+        """
         if self.base is None:
-            ev = self._candidates(*BASE_STEPS).evaluate(BASE_T_CANNY, BASE_T_SUPER, final=True)
-            shown = render(ev.model, device=self.device)
-            self.base = (ev, shown, detail_layer.residual_texels(self.rgb, shown))
+            h, w = self.rgb.shape[:2]
+            p = replace(self.params, t_canny=BASE_T_CANNY, t_super=BASE_T_SUPER, l_step=BASE_STEPS[0],
+                        ab_step=BASE_STEPS[1])
+            extractor = FeatureExtractor(self.rgb, self.geometry.index)
+            model = make_model(self.rgb, self.geometry, extractor, p, fit=True, fit_sub=base_fit_sub(w, h),
+                               fit_iterations=BASE_FIT_ITERATIONS)
+            data, decoded, err = evaluate(self.rgb, model, self.device, maps=stored_maps(self.geometry))
+            shown = render(decoded, device=self.device)
+            self.base = (Evaluation(data, decoded, err), shown, detail_layer.residual_texels(self.rgb, shown))
         return self.base
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:
