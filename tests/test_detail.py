@@ -77,6 +77,7 @@ def test_reported_psnr_is_the_render_of_the_file(photo, textured):
     rgb, _ = photo
     model = codec.decode(textured.data)
     assert model.detail is not None and model.params.extra["quality"] == 75
+    assert textured.model.detail == model.detail and codec.encode(textured.model) == textured.data
     assert psnr(rgb, render(model)) == pytest.approx(textured.psnr, abs=0.02)
 
 

@@ -26,8 +26,12 @@ def mse(a: np.ndarray, b: np.ndarray) -> float:
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR in dB of 8-bit RGB over the whole image (inf for identical images)."""
-    e = mse(a, b)
-    return float("inf") if e == 0 else float(10.0 * np.log10(1.0 / e))
+    return psnr_of_mse(mse(a, b))
+
+
+def psnr_of_mse(err: float) -> float:
+    """PSNR in dB of a mean squared error of values in ``[0, 1]`` (inf for 0)."""
+    return float("inf") if err == 0 else float(10.0 * np.log10(1.0 / err))
 
 
 def ssim(a: np.ndarray, b: np.ndarray) -> float:

@@ -25,8 +25,8 @@ import numpy as np
 import zstandard
 
 from .. import metrics
-from ..encode.detail import residual_texels, texel_rgb
-from ..encode.rate import _Trials
+from ..encode.detail import texel_rgb
+from ..encode.rate import Trials
 from ..encode.vectorize import build_geometry, scheme_params
 from ..codec.detail import decode_texels, encode_texels
 from ..model import DETAIL_YCC
@@ -104,16 +104,16 @@ def detail_codec_table(rgb: np.ndarray, labels: np.ndarray | None, device: str =
 
     h, w = rgb.shape[:2]
     labels = _auto_labels(rgb, 0) if labels is None else labels
-    trials = _Trials(rgb, build_geometry(labels, rgb), scheme_params(), True, device)
+    trials = Trials(rgb, build_geometry(labels, rgb), scheme_params(), True, device)
     ev, shown, texels = trials.vector_base()
     base = len(ev.data)
-    res8 = 255.0 * (np.asarray(rgb, np.float64) - shown)
+    res8 = 255.0 * (np.asarray(rgb, np.float64) - shown)  # what the codecs of other layouts code
     target = np.rint(np.asarray(rgb, np.float64) * 255)
     out: dict = {"base_bytes": base, "codecs": {}}
     for name, qs in QUALITIES.items():
         pts = []
         for q in qs:
-            n, dec = _code(name, q, res8, residual_texels(rgb, shown))
+            n, dec = _code(name, q, res8, texels)
             img = np.clip(np.rint(255.0 * shown + dec), 0, 255)
             err = float(np.mean((img - target) ** 2)) / 255.0**2
             pts.append({"q": q, "bytes": n + base, "bpp": metrics.bpp(n + base, w, h),

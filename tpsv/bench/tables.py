@@ -34,7 +34,7 @@ GLOBAL_EXACT_MAX = 3000
 def _point(rgb: np.ndarray, nbytes: int, err: float, **extra) -> dict:
     h, w = rgb.shape[:2]
     return {
-        "psnr": float("inf") if err == 0 else float(10 * np.log10(1.0 / err)),
+        "psnr": metrics.psnr_of_mse(err),
         "w": metrics.efficiency(err, nbytes, w, h),
         "bpp": metrics.bpp(nbytes, w, h),
         "bytes": int(nbytes),

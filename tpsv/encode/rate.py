@@ -33,8 +33,7 @@ from ..model import Params
 from ..render.raster import render
 from . import detail as detail_layer
 from .features import FeatureExtractor
-from .vectorize import (Candidates, Evaluation, VectorizeResult, build_geometry, evaluate, label_map, make_model,
-                        scheme_params, stored_maps)
+from .vectorize import Candidates, Evaluation, VectorizeResult, image_geometry, make_model, scheme_params
 
 #: The default quality: at least 32 dB on every bundled sample (README, "Quality").
 DEFAULT_QUALITY = 75
@@ -85,7 +84,7 @@ def check_quality(quality) -> int:
     return q
 
 
-class _Trials:
+class Trials:
     """Encodings at several qualities of one image, each made once (the search reuses them)."""
 
     def __init__(self, rgb, geometry, params: Params, detail: bool, device: str):
@@ -114,9 +113,11 @@ class _Trials:
             extractor = FeatureExtractor(self.rgb, self.geometry.index)
             model = make_model(self.rgb, self.geometry, extractor, p, fit=True, fit_sub=base_fit_sub(w, h),
                                fit_iterations=BASE_FIT_ITERATIONS)
-            data, decoded, err = evaluate(self.rgb, model, self.device, maps=stored_maps(self.geometry))
+            data = codec.encode(model)
+            decoded = codec.decode(data)
             shown = render(decoded, device=self.device)
-            self.base = (Evaluation(data, decoded, err), shown, detail_layer.residual_texels(self.rgb, shown))
+            ev = Evaluation(data, decoded, metrics.mse(self.rgb, shown))
+            self.base = (ev, shown, detail_layer.residual_texels(self.rgb, shown))
         return self.base
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:
@@ -134,13 +135,13 @@ class _Trials:
             coded = detail_layer.code_texels(texels, quality)
             model = replace(_stamped(ev.model, quality),
                             detail=detail_layer.make_detail(ev.model, texels, quality, coded))
-            data = codec.encode(model)
-            out = (data, codec.decode(data), metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1])))
+            err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1]))
         else:
             v = vector_params(quality)
             ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True)
-            data = codec.encode(_stamped(ev.model, quality))
-            out = (data, codec.decode(data), ev.mse)
+            model, err = _stamped(ev.model, quality), ev.mse
+        # quantize is decode(encode()) without decoding the texture's AVIF again
+        out = (codec.encode(model), codec.quantize(model), err)
         self.done[quality] = out
         return out
 
@@ -148,10 +149,6 @@ class _Trials:
 def _stamped(model, quality: int):
     """``model`` with the quality it was made at recorded in its params (``extra["quality"]``; ``tpsv info``)."""
     return replace(model, params=replace(model.params, extra={**model.params.extra, "quality": int(quality)}))
-
-
-def _psnr(mse: float) -> float:
-    return float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
 
 
 def encode_quality(
@@ -207,13 +204,11 @@ def encode_quality(
         raise TpsvError(f"maximum bytes {max_bytes} is not positive")
     if quality is not None:
         quality = check_quality(quality)
-    if outlines not in ("fitted", "traced"):
-        raise TpsvError(f"outlines {outlines!r} is not fitted or traced")
-    geometry = build_geometry(label_map(rgb, labels, seed), rgb if outlines == "fitted" else None)
-    trials = _Trials(rgb, geometry, params or scheme_params(), detail, device)
+    geometry = image_geometry(rgb, labels, seed, outlines)
+    trials = Trials(rgb, geometry, params or scheme_params(), detail, device)
     reached = True
     if target_psnr is not None:
-        q = _lowest(lambda k: _psnr(trials(k)[2]) >= target_psnr)
+        q = _lowest(lambda k: metrics.psnr_of_mse(trials(k)[2]) >= target_psnr)
         reached = q is not None
         q = MAX_QUALITY if q is None else q
     elif max_bytes is not None:
@@ -224,8 +219,8 @@ def encode_quality(
     else:
         q = DEFAULT_QUALITY if quality is None else quality
     data, model, mse = trials(q)
-    return VectorizeResult(model=model, data=data, psnr=_psnr(mse), mse=mse, seconds=time.perf_counter() - t0,
-                           history=[(k, len(v[0]), _psnr(v[2])) for k, v in sorted(trials.done.items())],
+    return VectorizeResult(model=model, data=data, psnr=metrics.psnr_of_mse(mse), mse=mse, seconds=time.perf_counter() - t0,
+                           history=[(k, len(v[0]), metrics.psnr_of_mse(v[2])) for k, v in sorted(trials.done.items())],
                            quality=q, reached=reached)
 
 

@@ -305,6 +305,28 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     return Geometry(regions=regions, index=index, blur=blur)
 
 
+def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted") -> Geometry:
+    """Stages 1-2 for a photo: its label map (segmented when absent), then its regions.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    labels : ndarray (H, W) int, optional
+    seed : int
+        Seed of the automatic segmentation.
+    outlines : {'fitted', 'traced'}
+        Outlines fitted to the photo's edges (with edge widths), or along the
+        label map's pixel edges.
+
+    Returns
+    -------
+    Geometry
+    """
+    if outlines not in ("fitted", "traced"):
+        raise TpsvError(f"outlines {outlines!r} is not fitted or traced")
+    return build_geometry(label_map(rgb, labels, seed), rgb if outlines == "fitted" else None)
+
+
 def start_thresholds(
     rgb: np.ndarray, geometry: Geometry, t_canny: float | None = None, t_super: float | None = None
 ) -> tuple[float, float]:
@@ -731,10 +753,8 @@ def vectorize(
     -------
     VectorizeResult
     """
-    if outlines not in ("fitted", "traced"):
-        raise TpsvError(f"outlines {outlines!r} is not fitted or traced")
     t0 = time.perf_counter()
-    geometry = build_geometry(label_map(rgb, labels, seed), rgb if outlines == "fitted" else None)
+    geometry = image_geometry(rgb, labels, seed, outlines)
     candidates = Candidates(rgb, geometry, params or scheme_params(), device=device, fit=fit)
     start = start_thresholds(rgb, geometry, t_canny, t_super)
     fixed = (t_canny is not None, t_super is not None)
@@ -751,7 +771,7 @@ def vectorize(
     return VectorizeResult(
         model=out.model,
         data=out.data,
-        psnr=float("inf") if out.mse == 0 else float(10 * np.log10(1.0 / out.mse)),
+        psnr=metrics.psnr_of_mse(out.mse),
         mse=out.mse,
         seconds=time.perf_counter() - t0,
         history=history,
