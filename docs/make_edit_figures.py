@@ -5,10 +5,10 @@ Run from the repository root: ``.venv/bin/python docs/make_edit_figures.py``
 ``search=False`` (the gradient-histogram thresholds) to keep this fast.
 
 Timings (CPU, best of 3): for each edit, the library call that makes the new
-model (``edit``), the incremental rebuild of :class:`tpsv.render.live.LiveImage`
+model (``edit``), the incremental rebuild of :class:`tpsv.rendering.live.LiveImage`
 from the unedited model's state (``live``: regroup or reuse, solve the
 changed kernels, rasterise the dirty pixels), and a full rebuild
-(``full``: ``tpsv.render.raster.render`` of the new model: group, solve every
+(``full``: ``tpsv.rendering.raster.render`` of the new model: group, solve every
 kernel, rasterise every pixel).
 """
 
@@ -23,8 +23,8 @@ import numpy as np
 
 from tpsv.edit import crossmap, deform, recolor, stylize
 from tpsv.image import read_image, read_labels, write_image
-from tpsv.render.live import LiveImage
-from tpsv.render.raster import render
+from tpsv.rendering.live import LiveImage
+from tpsv.rendering.raster import render
 from tpsv.encode.vectorize import vectorize
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from tpsv.image import read_image, write_image
-from tpsv.render.raster import render
+from tpsv.rendering.raster import render
 from tpsv.encode.rate import DEFAULT_QUALITY, encode_quality
 from tpsv.encode.vectorize import vectorize
 

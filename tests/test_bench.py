@@ -124,3 +124,17 @@ def test_gmsd_hand_checked():
 def test_gmsd_shape_mismatch():
     with pytest.raises(ValueError):
         metrics.gmsd(np.zeros((8, 8, 3)), np.zeros((8, 6, 3)))
+
+
+def test_device_table_reports_end_to_end_per_size():
+    from tests.test_tiles import traced_model
+    from tpsv.bench.tables import device_table, device_table_text
+
+    d = device_table(traced_model(), "cpu", sizes=((64, 48), (96, 72)), repeat=1)
+    assert [r["size"] for r in d["sizes"]] == [[64, 48], [96, 72]]
+    for r in d["sizes"]:
+        st = r["stages_ms"]
+        assert r["end_to_end_ms"] == pytest.approx(st["total"] - st["download"])
+        assert 0 < r["device_ms"] < r["end_to_end_ms"] and r["max_abs_diff_vs_cpu"] == 0.0
+    text = device_table_text([{"name": "blobs", "device_check": d}], "cpu")
+    assert "e2e" in text and "96x72" in text

@@ -95,8 +95,8 @@ def _bad_inputs(tmp_path, small_rgb):
     text.write_text("this is not an image\n")
     tiny = tmp_path / "tiny.png"
     cv2.imwrite(str(tiny), np.zeros((1, 1, 3), np.uint8))
-    deep = tmp_path / "deep.png"
-    cv2.imwrite(str(deep), (small_rgb[:, :, ::-1] * 65535).astype(np.uint16))
+    deep = tmp_path / "deep.tiff"  # 16-bit PNG and TIFF are read; floating-point samples are not
+    cv2.imwrite(str(deep), small_rgb[:, :, ::-1].astype(np.float32))
     rgba = tmp_path / "rgba.png"
     a = np.dstack([np.round(small_rgb * 255).astype(np.uint8), np.full(small_rgb.shape[:2], 128, np.uint8)])
     cv2.imwrite(str(rgba), a)
@@ -204,7 +204,7 @@ def test_render_antialias_switch(tmp_path, tpsv_file):
     """--no-antialias gives one region per pixel: the library's render(antialias=False), byte for byte."""
     from tpsv import codec
     from tpsv.image import encode_png
-    from tpsv.render.raster import render
+    from tpsv.rendering.raster import render
 
     model = codec.load(tpsv_file)
     for flag, aa in (("--antialias", True), ("--no-antialias", False)):

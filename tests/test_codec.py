@@ -372,7 +372,7 @@ def test_section_sizes_break_down_the_file():
 def test_file_starts_with_magic_and_version():
     data = codec.encode(tiny_model())
     assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
-    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 3
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 4
 
 
 def test_compact_features():
@@ -527,10 +527,10 @@ def test_text_mode_mangling_is_named():
     reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
 
 
-@pytest.mark.parametrize("version", [4, 7, 65535])
+@pytest.mark.parametrize("version", [5, 7, 65535])
 def test_future_version_rejected(version):
     data = patch_header(codec.encode(tiny_model()), version=version)
-    reject(data, f"unsupported format version {version} (this tpsv reads up to 3)")
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 4)")
     # Even a short file of a future version gets the version message.
     reject(data[:12], f"unsupported format version {version}")
 
@@ -847,7 +847,8 @@ def test_limits_are_exported():
 
 CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
 VERSION_1 = sorted((Path(__file__).parent / "data" / "v1").glob("*.tpsv"))
-OLD_VERSIONS = VERSION_1 + sorted((Path(__file__).parent / "data" / "v2").glob("*.tpsv"))
+OLD_VERSIONS = VERSION_1 + sorted((Path(__file__).parent / "data" / "v2").glob("*.tpsv")) + sorted(
+    (Path(__file__).parent / "data" / "v3").glob("*.tpsv"))
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
@@ -858,15 +859,20 @@ def test_reencoding_a_sample_file_gives_its_bytes(path):
 
 
 @pytest.mark.parametrize("path", OLD_VERSIONS, ids=lambda p: f"{p.parent.name}-{p.stem}")
-def test_old_version_files_are_read_and_written_back_as_version_3(path):
-    """docs/FORMAT.md, Versions: a version-1 or -2 file decodes as it always did; encoding writes version 3, same model."""
+def test_old_version_files_are_read_and_written_back_as_version_4(path):
+    """docs/FORMAT.md, Versions: a version-1, -2 or -3 file decodes as it always did; encoding writes version 4, same model."""
     data = path.read_bytes()
-    assert struct.unpack_from("<H", data, 8)[0] == int(path.parent.name[1:])
+    version = int(path.parent.name[1:])
+    assert struct.unpack_from("<H", data, 8)[0] == version
     m = codec.decode(data)
-    assert m.detail is None
+    assert (m.detail is None) == (version < 3 or struct.unpack_from("<H", data, 10)[0] == 0)
+    assert not any(r.transparent for r in m.regions)
     again = codec.encode(m)
-    assert struct.unpack_from("<H", again, 8)[0] == 3
-    assert struct.unpack_from("<H", again, 10)[0] == 0  # no flags: no detail section
+    assert struct.unpack_from("<H", again, 8)[0] == 4
+    # the same flags (detail or not), and from version 3 on the same bytes after the version field
+    assert struct.unpack_from("<H", again, 10)[0] == struct.unpack_from("<H", data, 10)[0]
+    if version == 3:
+        assert again[10:68] == data[10:68] and again[72:] == data[72:]
     assert_models_identical(codec.decode(again), m)
     # shared borders are stored once: never larger than the version-1 file's outlines
     assert codec.section_sizes(again)["regions"] <= codec.section_sizes(data)["regions"] + 16

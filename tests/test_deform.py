@@ -15,8 +15,8 @@ from tpsv.geometry import patch
 from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import Patch
-from tpsv.render.pixelmap import FRONT_KEY, draw_order, region_index
-from tpsv.render.raster import render
+from tpsv.rendering.pixelmap import FRONT_KEY, draw_order, region_index
+from tpsv.rendering.raster import render
 
 SHIFT = (8.0, -3.0)
 

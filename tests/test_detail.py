@@ -24,8 +24,8 @@ from tpsv.edit.stylize import abstract
 from tpsv.encode.rate import encode_quality
 from tpsv.errors import TpsvError, TpsvFormatError
 from tpsv.model import DETAIL_FULL, DETAIL_LUMA, DETAIL_OFF
-from tpsv.render.live import LiveImage
-from tpsv.render.raster import render, render_bands
+from tpsv.rendering.live import LiveImage
+from tpsv.rendering.raster import render, render_bands
 
 from conftest import small_sample
 
@@ -100,6 +100,15 @@ def test_target_psnr_met_or_closest_reported(photo, textured):
     assert not far.reached and far.quality == 100
 
 
+def test_progress_is_reported_up_to_the_end(photo, textured):
+    rgb, labels = photo
+    for kwargs in ({"quality": 40}, {"target_psnr": textured.psnr}):
+        calls = []
+        encode_quality(rgb, labels, progress=lambda done, total: calls.append((done, total)), **kwargs)
+        done = [d for d, _ in calls]
+        assert done == sorted(done) and calls[-1][0] == calls[-1][1] and len({t for _, t in calls}) == 1
+
+
 def test_one_target_at_a_time(photo):
     rgb, labels = photo
     with pytest.raises(TpsvError, match="give one of"):
@@ -123,7 +132,7 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     assert codec.encode(codec.quantize(model)) == textured.data
     sizes = codec.section_sizes(textured.data)
     assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
-    assert struct.unpack_from("<HH", textured.data, 8) == (3, layout.FLAG_DETAIL)
+    assert struct.unpack_from("<HH", textured.data, 8) == (layout.VERSION, layout.FLAG_DETAIL)
 
 
 def test_a_tall_texture_puts_its_planes_side_by_side():

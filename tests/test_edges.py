@@ -8,9 +8,9 @@ import pytest
 from tpsv.encode.vectorize import vectorize
 from tpsv.geometry import subpixel
 from tpsv.geometry.regions import build_regions
-from tpsv.render.borders import Borders
-from tpsv.render.pixelmap import region_index
-from tpsv.render.raster import render, render_bands
+from tpsv.rendering.borders import Borders
+from tpsv.rendering.pixelmap import region_index
+from tpsv.rendering.raster import render, render_bands
 
 A = np.array([0.9, 0.2, 0.1])
 B = np.array([0.1, 0.3, 0.8])
@@ -241,7 +241,7 @@ def test_hostile_outlines_render_with_bounded_border_work():
     """A self-intersecting zig-zag outline across the canvas: pieces stay within MAX_PIECES, the render finishes."""
     import copy
 
-    from tpsv.render import borders
+    from tpsv.rendering import borders
 
     rgb, labels, _ = edge_picture(16, 8.3)
     m = copy.deepcopy(vectorize(rgb, labels, search=False).model)

@@ -213,5 +213,7 @@ def test_bad_input_file_never_clobbers(tmp_path):
     out.write_bytes(b"precious")
     for args in (("recolor", "--hue", 5), ("deform", "--affine", "0:1,0,1,0,1,0"), ("crossmap", "--target-region", 0)):
         assert_one_line_error(run(args[0], bad, "-o", out, *args[1:]), 1)
-    assert_one_line_error(run("stylize", bad, "-o", out), 1)
-    assert out.read_bytes() == b"precious"
+    picture = tmp_path / "keep.png"  # stylize writes an image: a .tpsv name is a usage error before reading
+    picture.write_bytes(b"precious")
+    assert_one_line_error(run("stylize", bad, "-o", picture), 1)
+    assert out.read_bytes() == b"precious" and picture.read_bytes() == b"precious"

@@ -18,7 +18,7 @@ from tpsv.export.edges import edge_sigmas
 from tpsv.export.icc import srgb_profile
 from tpsv.export.pdf import hardlight_source
 from tpsv.metrics import psnr
-from tpsv.render.raster import render
+from tpsv.rendering.raster import render
 
 from conftest import SAMPLES
 from editfixtures import scene_model

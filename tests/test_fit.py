@@ -12,7 +12,7 @@ from tpsv.encode import fit
 from tpsv import tps
 from tpsv.color import lab_to_srgb, srgb_to_lab
 from tpsv.encode.features import FeatureExtractor
-from tpsv.render.raster import render
+from tpsv.rendering.raster import render
 from tpsv.encode.vectorize import build_geometry, make_model, scheme_params
 
 

@@ -20,7 +20,7 @@ from click.testing import CliRunner
 
 from tpsv import image
 from tpsv.errors import TpsvError
-from tpsv.image import MAX_PIXELS, read_header, read_image, read_labels, read_strokes
+from tpsv.image import MAX_PIXELS, read_header, read_image, read_image_alpha, read_labels, read_strokes
 
 FORMAT_LIST = "unsupported image format; tpsv reads PNG, JPEG, WebP, TIFF, BMP and PNM"
 
@@ -284,17 +284,18 @@ def test_pixel_budget_admits_24_megapixel_photos():
     assert 6000 * 4000 <= MAX_PIXELS
 
 
-@pytest.mark.parametrize("ext", [".png", ".tiff"])
-def test_16bit_refused_from_header(tmp_path, no_decode, ext):
-    path = write(tmp_path, f"deep{ext}", encode(ext, RGB.astype(np.uint16) * 257))
-    assert error_of(read_image, path) == f"{path}: 16-bit image; tpsv reads 8-bit images only"
+def test_16bit_pnm_refused_from_header(tmp_path, no_decode):
+    # 16-bit PNG and TIFF are read (tests/test_formats.py); OpenCV swaps the bytes of 16-bit PNM
+    path = write(tmp_path, "deep.ppm", b"P6 4 3 65535\n" + b"\0" * 72)
+    assert error_of(read_image, path) == f"{path}: 16-bit PNM image; tpsv reads 8-bit images, and 16-bit PNG and TIFF"
 
 
 def test_float_tiff_with_nan_refused(tmp_path, no_decode):
     img = RGB.astype(np.float32) / 255
     img[3, 4] = np.nan
     path = write(tmp_path, "nan.tiff", encode(".tiff", img))
-    assert error_of(read_image, path) == f"{path}: 32-bit floating-point image; tpsv reads 8-bit images only"
+    assert error_of(read_image, path) == (
+        f"{path}: 32-bit floating-point image; tpsv reads 8- and 16-bit integer images only")
     assert "floating-point" in error_of(read_labels, path)
 
 
@@ -380,14 +381,25 @@ def test_cmyk_jpeg_decodes_to_rgb(tmp_path):
     np.testing.assert_allclose(rgb, [[0, 255, 255], [255, 255, 255], [0, 0, 0], [255, 255, 0]], atol=2)
 
 
-def test_rgba_opaque_accepted_transparent_refused(tmp_path):
+def test_rgba_opaque_accepted_transparent_refused_by_the_opaque_reader(tmp_path):
     rgba = np.dstack([RGB, np.full(RGB.shape[:2], 255, np.uint8)])
     rgb = read_image(write(tmp_path, "opaque.png", encode(".png", rgba)))
     np.testing.assert_array_equal(np.rint(rgb * 255), RGB[:, :, ::-1])
+    assert read_image_alpha(write(tmp_path, "opaque.png", encode(".png", rgba)))[1] is None
     rgba[5, 5, 3] = 0
+    rgba[6, 5, 3] = 128
     path = write(tmp_path, "hole.png", encode(".png", rgba))
     assert error_of(read_image, path) == (
-        f"{path}: image has transparency (RGBA); flatten it onto a background first")
+        f"{path}: image has transparent pixels; this command reads opaque images (vectorize keeps transparency): "
+        "flatten it onto a background first")
+    rgb, alpha = read_image_alpha(path)
+    np.testing.assert_array_equal(np.rint(rgb * 255), RGB[:, :, ::-1])  # straight colours, not premultiplied
+    assert alpha.shape == RGB.shape[:2] and alpha[5, 5] == 0 and alpha[6, 5] == np.float32(128 / 255)
+    assert (alpha == 1).sum() == alpha.size - 2
+    # 16-bit RGBA: alpha / 65535
+    deep = rgba.astype(np.uint16) * 257
+    _, alpha16 = read_image_alpha(write(tmp_path, "deep.png", encode(".png", deep)))
+    np.testing.assert_array_equal(alpha16, alpha)
 
 
 def _stored(upright: np.ndarray, orientation: int) -> np.ndarray:
@@ -437,7 +449,7 @@ def _hostile_files(tmp_path) -> dict:
         "crc.png": encode(".png", RGB)[:-20] + b"\0" * 20,
         "cut.jpg": jpeg[: len(jpeg) // 2],
         "cut.webp": webp[: len(webp) // 2],
-        "deep.tiff": encode(".tiff", RGB.astype(np.uint16)),
+        "float.tiff": encode(".tiff", RGB.astype(np.float32)),
         "text.png": b"not an image at all\n",
         "empty.png": b"",
         "magic.png": b"GIF89a" + b"\0" * 100,

@@ -65,8 +65,8 @@ def photo(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("sig, code, line", [(signal.SIGTERM, 143, "tpsv: terminated"),
                                              (signal.SIGINT, 130, "tpsv: interrupted")])
 def test_signal_during_vectorize_stops_cleanly(tmp_path, photo, sig, code, line):
-    (tmp_path / "kept.tpsv").write_bytes(b"earlier output")
-    proc = start(["vectorize", photo, "-o", "new.tpsv", "--preview", "kept.tpsv"], tmp_path)
+    (tmp_path / "kept.png").write_bytes(b"earlier output")
+    proc = start(["vectorize", photo, "-o", "new.tpsv", "--preview", "kept.png"], tmp_path)
     deadline = time.monotonic() + 60
     while not handlers_installed(proc.pid):
         assert proc.poll() is None, proc.communicate()
@@ -80,7 +80,7 @@ def test_signal_during_vectorize_stops_cleanly(tmp_path, photo, sig, code, line)
     assert err.splitlines() == [line]
     assert out == ""
     assert not (tmp_path / "new.tpsv").exists()
-    assert (tmp_path / "kept.tpsv").read_bytes() == b"earlier output"
+    assert (tmp_path / "kept.png").read_bytes() == b"earlier output"
     assert leftovers(tmp_path) == []
 
 

@@ -1,4 +1,4 @@
-"""Incremental rebuild (tpsv.render.live): only kernels whose features changed are solved, results bit-identical."""
+"""Incremental rebuild (tpsv.rendering.live): only kernels whose features changed are solved, results bit-identical."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from editfixtures import DISC, PANEL, photo_model, scene_model
 from tpsv.edit import crossmap, deform, recolor
 from tpsv import tps
 from tpsv.gpu import tps as gtps
-from tpsv.render.live import LiveImage, kernel_keys
-from tpsv.render.raster import render
+from tpsv.rendering.live import LiveImage, kernel_keys
+from tpsv.rendering.raster import render
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import pytest
 
 from tpsv import metrics
 from tpsv.errors import TpsvError
-from tpsv.render.magnify import back_project, dense_model, magnify_raster
-from tpsv.render.raster import render
+from tpsv.rendering.magnify import back_project, dense_model, magnify_raster
+from tpsv.rendering.raster import render
 
 
 def test_dense_model_has_a_feature_per_pixel(small_rgb, small_labels):
@@ -50,7 +50,7 @@ def test_magnify_raster_size_and_quality(small_rgb):
 
 def test_dense_model_params_default():
     from tpsv.model import Params
-    from tpsv.render.magnify import DENSE_PARAMS
+    from tpsv.rendering.magnify import DENSE_PARAMS
 
     model, _ = dense_model(np.full((6, 8, 3), 0.5, np.float32))
     assert model.params == Params(**DENSE_PARAMS)
@@ -58,7 +58,7 @@ def test_dense_model_params_default():
 
 
 def test_raster_magnify_beyond_one_render_is_refused_before_the_fit(monkeypatch):
-    from tpsv.render import magnify as mg
+    from tpsv.rendering import magnify as mg
 
     called = []
     monkeypatch.setattr(mg, "dense_model", lambda *a, **k: called.append(1))

@@ -249,7 +249,7 @@ def test_choose_grid_bounds():
 
 def test_preview_draws_grids_outlines_features():
     from tpsv.model import CURVILINEAR, GRADATION, Features, Model, Region
-    from tpsv.render.preview import draw_preview
+    from tpsv.rendering.preview import draw_preview
 
     m = SHAPES["cshape"]
     out = trace_outline(m)

@@ -11,8 +11,8 @@ from tpsv.edit import recolor
 from tpsv.edit.common import copy_model
 from tpsv.errors import TpsvError
 from tpsv.model import CURVILINEAR, GRADATION
-from tpsv.render.pixelmap import region_index
-from tpsv.render.raster import render
+from tpsv.rendering.pixelmap import region_index
+from tpsv.rendering.raster import render
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from tpsv.edit import deform
 from tpsv.encode import fit
 from tpsv.errors import TpsvError
 from tpsv.geometry import outline
-from tpsv.render import raster as render
-from tpsv.render.pixelmap import region_index
+from tpsv.rendering import raster as render
+from tpsv.rendering.pixelmap import region_index
 from tpsv.model import Features, Model, Params, Region
 
 from conftest import rect_patch
@@ -235,6 +235,21 @@ def test_render_timed(smooth_model):
     assert img.shape == (48, 64, 3)
     for key in ("regions", "patchmap", "group", "upload", "solve", "rasterise", "download", "total"):
         assert key in t and t[key] >= 0
+
+
+def test_kept_on_the_device_is_the_downloaded_render(smooth_model):
+    img = render.render(smooth_model, scale=1.7)
+    frame = render.render(smooth_model, scale=1.7, keep_on_device=True)
+    assert frame.device.is_cpu and frame.shape == img.shape[:2]
+    assert np.array_equal(frame.numpy().reshape(img.shape), img)
+    with pytest.raises(TpsvError, match="keep_on_device"):
+        render.render(smooth_model, alpha=True, keep_on_device=True)
+
+
+def test_kernels_grouped_once_render_as_fresh_ones(smooth_model):
+    ks = tps.group_kernels(smooth_model)
+    for scale in (1, 2.5):
+        assert np.array_equal(render.render(smooth_model, scale=scale, kernels=ks), render.render(smooth_model, scale=scale))
 
 
 def test_kernels_must_match_model(smooth_model):

@@ -14,8 +14,8 @@ from tpsv.errors import TpsvError
 from tpsv.geometry import outline
 from tpsv.geometry.regions import build_regions
 from tpsv.model import Features, Model, Params, Region
-from tpsv.render import raster as render
-from tpsv.render.pixelmap import BandMaps, pixel_map, region_index
+from tpsv.rendering import raster as render
+from tpsv.rendering.pixelmap import BandMaps, pixel_map, region_index
 
 from conftest import rect_patch
 

@@ -15,7 +15,7 @@ from tpsv.cli import main
 from tpsv.errors import TpsvError
 from tpsv.model import Params
 from tpsv.encode.features import FeatureExtractor
-from tpsv.render.raster import render
+from tpsv.rendering.raster import render
 from tpsv.encode.vectorize import (
     SCHEME_PARAMS, Candidates, build_geometry, finish, label_map, make_model, scan_order, scheme_of, scheme_params,
     search_thresholds, start_thresholds, vectorize,

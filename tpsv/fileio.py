@@ -62,7 +62,8 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (this one does; another user's does too)."""
     if pid == os.getpid():
         return True
     try:
@@ -85,7 +86,7 @@ def _remove_stale_temporaries(target: Path) -> None:
         if not name.startswith(prefix):
             continue
         m = _TMP_RE.search(name)
-        if m and not _pid_alive(int(m.group(1))):
+        if m and not pid_alive(int(m.group(1))):
             try:
                 os.unlink(target.parent / name)
             except OSError:

@@ -12,7 +12,11 @@ Formats read: PNG, JPEG, WebP, TIFF (classic and BigTIFF), BMP and PNM
 (P1-P6). Others are refused by name even where OpenCV could decode them
 (GIF, AVIF, JPEG 2000, ...): each extra decoder is attack surface, and the
 budgets need a header this module can read. Multi-frame files (animated PNG or
-WebP, multi-page TIFF) give their first frame.
+WebP, multi-page TIFF) give their first frame. Photos are 8-bit, or 16-bit PNG
+and TIFF (read without losing precision: :func:`read_image`).
+
+Formats written (:func:`output_format`, :func:`encode_image`): PNG (8- or
+16-bit), JPEG, WebP and TIFF (8- or 16-bit), chosen by the file's extension.
 
 Budgets
 -------
@@ -39,7 +43,7 @@ import numpy as np
 
 from .codec.layout import MAX_SIDE
 from .errors import TpsvError
-from .fileio import read_bytes, write_bytes_atomic
+from .fileio import display, read_bytes, write_bytes_atomic
 from .quiet import quiet_stderr
 
 #: Largest raster we accept (pixels): a 24 Mpx camera photo fits with margin.
@@ -445,19 +449,20 @@ def read_header(data: bytes, path: str | os.PathLike = "-") -> ImageHeader:
 # --------------------------------------------------------------------------- budgets and decoding
 
 
-def _check_budget(header: ImageHeader, path, max_bits: int) -> None:
-    """Refuse, from the header alone, what is too large or of a depth we do not read."""
+def _check_budget(header: ImageHeader, path) -> None:
+    """Refuse, from the header alone, what is too large or of a sample type we do not read."""
     width, height = header.upright_size
     if width * height > MAX_PIXELS:
         raise TpsvError(f"{path} is {width}x{height} px; tpsv accepts at most {MAX_PIXELS} px")
     if max(width, height) > MAX_SIDE:
         raise TpsvError(f"{path} is {width}x{height} px; tpsv accepts at most {MAX_SIDE} px per side")
     if header.sample_format == "float":
-        raise TpsvError(f"{path}: {header.bit_depth}-bit floating-point image; tpsv reads 8-bit images only")
+        raise TpsvError(f"{path}: {header.bit_depth}-bit floating-point image; "
+                        "tpsv reads 8- and 16-bit integer images only")
     if header.sample_format == "int":
-        raise TpsvError(f"{path}: {header.bit_depth}-bit signed image; tpsv reads 8-bit images only")
-    if header.bit_depth > max_bits:
-        raise TpsvError(f"{path}: {header.bit_depth}-bit image; tpsv reads 8-bit images only")
+        raise TpsvError(f"{path}: {header.bit_depth}-bit signed image; tpsv reads 8- and 16-bit unsigned images only")
+    if header.bit_depth > 16:
+        raise TpsvError(f"{path}: {header.bit_depth}-bit image; tpsv reads 8- and 16-bit images only")
 
 
 def _upright(img: np.ndarray, orientation: int) -> np.ndarray:
@@ -486,11 +491,11 @@ def _read_file(path: str | os.PathLike) -> bytes:
     return data
 
 
-def _open(path: str | os.PathLike, max_bits: int) -> tuple[bytes, ImageHeader]:
+def _open(path: str | os.PathLike) -> tuple[bytes, ImageHeader]:
     """The file's bytes and its header, checked against the budgets."""
     data = _read_file(path)
     header = read_header(data, path)
-    _check_budget(header, path, max_bits)
+    _check_budget(header, path)
     return data, header
 
 
@@ -509,14 +514,24 @@ def _decode(data: bytes, header: ImageHeader, path, flags: int) -> np.ndarray:
     return _upright(img, header.orientation)
 
 
+#: Formats whose 16-bit samples :func:`read_image` reads (OpenCV 5 swaps the
+#: bytes of 16-bit PNM; 12-bit JPEG is rare and decodes to another range).
+DEEP_FORMATS = ("PNG", "TIFF")
+
+
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an 8-bit grey or RGB photo.
+    """Read an opaque grey or RGB photo: 8-bit, or 16-bit PNG and TIFF.
 
     The header is read first and checked (size at most :data:`MAX_PIXELS`,
-    8 bits per sample) before any pixel is decoded. Palette and CMYK images
-    come back as RGB, a JPEG's EXIF orientation is applied, and of a
-    multi-frame file (animated PNG or WebP, multi-page TIFF) the first frame
-    is read.
+    8 bits per sample, or 16 for PNG and TIFF) before any pixel is decoded.
+    Palette and CMYK images come back as RGB, a JPEG's EXIF orientation is
+    applied, and of a multi-frame file (animated PNG or WebP, multi-page TIFF)
+    the first frame is read.
+
+    Sample values ``v`` become ``v / 255`` (8-bit) or ``v / 65535`` (16-bit)
+    in float32, so a 16-bit photo keeps its precision into the float image
+    (``round(x * 65535)`` gives ``v`` back) and a 16-bit copy of an 8-bit one
+    (``v * 257``) reads as the same floats.
 
     Parameters
     ----------
@@ -532,25 +547,65 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     ------
     TpsvError
         Unreadable, not a supported image, truncated or corrupt, too large,
-        16-bit or floating-point, with transparency, or smaller than 2x2.
+        floating-point, signed, of another depth than 8 or 16 (16: PNG and
+        TIFF only), with transparent pixels (:func:`read_image_alpha` reads
+        those), or smaller than 2x2.
     """
-    data, header = _open(path, max_bits=8)
+    rgb, alpha = read_image_alpha(path)
+    if alpha is not None:
+        raise TpsvError(f"{path}: image has transparent pixels; this command reads opaque images "
+                        "(vectorize keeps transparency): flatten it onto a background first")
+    return rgb
+
+
+def read_image_alpha(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a photo with its transparency: :func:`read_image`, plus the alpha channel.
+
+    Parameters
+    ----------
+    path : str or path-like
+        As :func:`read_image`; grey + alpha, RGBA and palette images with
+        transparency give their alpha.
+
+    Returns
+    -------
+    rgb : ndarray, shape (H, W, 3), float32
+        Straight (not premultiplied) colours in ``[0, 1]``.
+    alpha : ndarray, shape (H, W), float32, or None
+        Opacity in ``[0, 1]`` (``v / 255`` or ``v / 65535``); None when every
+        pixel is opaque.
+
+    Raises
+    ------
+    TpsvError
+        As :func:`read_image`, transparency aside.
+    """
+    data, header = _open(path)
     w, h = header.upright_size
+    if header.bit_depth > 8 and not (header.bit_depth == 16 and header.format in DEEP_FORMATS):
+        raise TpsvError(f"{path}: {header.bit_depth}-bit {header.format} image; "
+                        "tpsv reads 8-bit images, and 16-bit PNG and TIFF")
     if h < 2 or w < 2:
         raise TpsvError(f"{path}: image of {w}x{h} is too small (at least 2x2)")
     img = _decode(data, header, path, cv2.IMREAD_UNCHANGED)
     del data  # the file's bytes are not needed while the float copy is made
-    if img.dtype != np.uint8:  # the header said 8-bit; a decoder saying otherwise still stops here
-        raise TpsvError(f"{path}: {img.dtype.itemsize * 8}-bit image; tpsv reads 8-bit images only")
+    if img.dtype not in (np.uint8, np.uint16):  # the header said otherwise; the decoder's word is final
+        raise TpsvError(f"{path}: {img.dtype.itemsize * 8}-bit image; tpsv reads 8- and 16-bit images only")
+    top = np.iinfo(img.dtype).max
+    alpha = None
     if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
+        img = img[:, :, None]
     elif img.shape[2] == 4:
-        if np.any(img[:, :, 3] != 255):
-            raise TpsvError(f"{path}: image has transparency (RGBA); flatten it onto a background first")
+        if np.any(img[:, :, 3] != top):
+            alpha = img[:, :, 3].astype(np.float32) / np.float32(top)
         img = img[:, :, :3]
     elif img.shape[2] != 3:
         raise TpsvError(f"{path}: image with {img.shape[2]} channels; expected grey or RGB")
-    return np.ascontiguousarray(img[:, :, ::-1]).astype(np.float32) / 255.0
+    rgb = np.empty(img.shape[:2] + (3,), np.float32)
+    rgb[...] = img[:, :, ::-1]  # BGR -> RGB (grey: broadcast to three channels)
+    del img
+    rgb /= np.float32(top)
+    return rgb, alpha
 
 
 def read_labels(path: str | os.PathLike, shape: tuple[int, int] | None = None) -> np.ndarray:
@@ -568,7 +623,7 @@ def read_labels(path: str | os.PathLike, shape: tuple[int, int] | None = None) -
     -------
     labels : ndarray, shape (H, W), int32
     """
-    data, header = _open(path, max_bits=16)
+    data, header = _open(path)
     img = _decode(data, header, path, cv2.IMREAD_UNCHANGED)
     if img.ndim == 3:
         if img.shape[2] >= 3 and np.array_equal(img[:, :, 0], img[:, :, 1]) and np.array_equal(img[:, :, 1], img[:, :, 2]):
@@ -597,47 +652,247 @@ def read_strokes(path: str | os.PathLike) -> np.ndarray:
     -------
     rgb : ndarray, shape (H, W, 3), uint8
     """
-    data, header = _open(path, max_bits=16)
+    data, header = _open(path)
     # Orientation is applied by _decode, as for the other readers.
     img = _decode(data, header, path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
-#: Pixels converted to 8 bits at a time (bounds the float64 scratch copy).
+#: Pixels converted to integers at a time (bounds the float64 scratch copy).
 _U8_PIXELS = 1 << 18
+
+
+def _to_uint(rgb: np.ndarray, dtype) -> np.ndarray:
+    """``round(v * top)`` clipped to ``0..top`` (the dtype's largest value), a few rows at a time."""
+    top = float(np.iinfo(dtype).max)
+    out = np.empty(rgb.shape, dtype)
+    flat_in = rgb.reshape(-1, rgb.shape[2]) if rgb.ndim == 3 else rgb.reshape(-1)
+    flat_out = out.reshape(flat_in.shape)
+    for i in range(0, flat_in.shape[0], _U8_PIXELS):
+        part = np.asarray(flat_in[i:i + _U8_PIXELS], np.float64)
+        flat_out[i:i + _U8_PIXELS] = np.clip(np.rint(part * top), 0, top).astype(dtype)
+    return out
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
     """8-bit sRGB of float sRGB in ``[0, 1]`` (rounded, clipped); uint8 input is returned as is.
 
-    The one rounding rule of every raster tpsv writes (PNG, bands of a large
-    render, stylize's strokes), applied a few rows at a time.
+    The one rounding rule of every 8-bit raster tpsv writes (PNG, JPEG, WebP,
+    TIFF, bands of a large render, stylize's strokes), applied a few rows at a
+    time.
     """
     if rgb.dtype == np.uint8:
         return rgb
-    out = np.empty(rgb.shape, np.uint8)
-    flat_in = rgb.reshape(-1, 3) if rgb.ndim == 3 else rgb.reshape(-1)
-    flat_out = out.reshape(flat_in.shape)
-    for i in range(0, flat_in.shape[0], _U8_PIXELS):
-        part = np.asarray(flat_in[i:i + _U8_PIXELS], np.float64)
-        flat_out[i:i + _U8_PIXELS] = np.clip(np.rint(part * 255.0), 0, 255).astype(np.uint8)
-    return out
+    return _to_uint(rgb, np.uint8)
 
 
-def encode_png(rgb: np.ndarray) -> bytes:
-    """PNG bytes of an RGB image given as float in ``[0, 1]`` or uint8."""
-    rgb = to_uint8(rgb)
-    if rgb.ndim == 3:
-        rgb = np.ascontiguousarray(rgb[:, :, ::-1])
-    ok, buf = cv2.imencode(".png", rgb)
+def to_uint16(rgb: np.ndarray) -> np.ndarray:
+    """16-bit sRGB of float sRGB in ``[0, 1]``: ``round(v * 65535)``, clipped.
+
+    uint8 input becomes ``v * 257`` (the same value, 8-bit ``v / 255``
+    rounded to 16 bits); uint16 input is returned as is.
+    """
+    if rgb.dtype == np.uint16:
+        return rgb
+    if rgb.dtype == np.uint8:
+        return rgb.astype(np.uint16) * np.uint16(257)
+    return _to_uint(rgb, np.uint16)
+
+
+# --------------------------------------------------------------------------- writing
+
+#: Raster formats written, by file extension (compared in lower case).
+OUTPUT_EXTENSIONS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".webp": "WebP", ".tif": "TIFF",
+                     ".tiff": "TIFF"}
+#: Format names :func:`output_format` accepts (lower case) for a path without an extension (stdout).
+OUTPUT_NAMES = {"png": "PNG", "jpeg": "JPEG", "jpg": "JPEG", "webp": "WebP", "tiff": "TIFF", "tif": "TIFF"}
+#: Quality of a JPEG or WebP output when none is given, and of every preview:
+#: high enough that a render's colour steps and borders show no artefacts.
+OUTPUT_QUALITY = 95
+#: JPEGs of at least this quality keep chroma at full resolution (4:4:4), as
+#: sharp coloured region borders need; lower qualities halve it both ways (4:2:0).
+FULL_CHROMA_QUALITY = 90
+#: Formats that hold 16 bits a sample.
+DEEP_OUTPUTS = ("PNG", "TIFF")
+#: Largest side each format can store (WebP: 14 bits; JPEG: 16 bits).
+OUTPUT_MAX_SIDE = {"PNG": 2**31 - 1, "JPEG": 65535, "WebP": 16383, "TIFF": 2**32 - 1}
+_WRITTEN = ".png, .jpg/.jpeg, .webp or .tif/.tiff"
+
+
+@dataclass(frozen=True)
+class OutputFormat:
+    """How a raster output is encoded (:func:`output_format` makes one from a path).
+
+    Attributes
+    ----------
+    name : str
+        ``"PNG"``, ``"JPEG"``, ``"WebP"`` or ``"TIFF"``.
+    depth : int
+        Bits a sample: 8, or 16 for PNG and TIFF.
+    quality : int
+        1-100, for JPEG and WebP (WebP at 100 is lossless); PNG and TIFF are
+        always lossless (TIFF: LZW with the horizontal predictor).
+    """
+
+    name: str = "PNG"
+    depth: int = 8
+    quality: int = OUTPUT_QUALITY
+
+    def check_size(self, width: int, height: int) -> None:
+        """Refuse a size the format cannot store (a WebP over 16383 px a side).
+
+        Raises
+        ------
+        TpsvError
+        """
+        side = OUTPUT_MAX_SIDE[self.name]
+        if max(width, height) > side:
+            others = [f for f, s in OUTPUT_MAX_SIDE.items() if f != self.name and max(width, height) <= s]
+            raise TpsvError(f"a {self.name} image is at most {side} px a side, not {width}x{height} px; "
+                            f"write {', '.join(others[:-1])} or {others[-1]}")
+
+
+def output_format(path: str | os.PathLike = "-", name: str | None = None, depth: int = 8,
+                  quality: int | None = None) -> OutputFormat:
+    """The format a raster output is written in: its extension's, else ``name``'s, else PNG.
+
+    ``.png``, ``.jpg``/``.jpeg``, ``.webp`` and ``.tif``/``.tiff`` (any case)
+    name their format; a path without an extension (``-``, ``/dev/stdout``)
+    gets ``name``, or PNG.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The output path (``-``: stdout).
+    name : str, optional
+        A format name (:data:`OUTPUT_NAMES`); with an extension, it must agree.
+    depth : int
+        8, or 16 (PNG and TIFF).
+    quality : int, optional
+        1-100 for JPEG and WebP (default :data:`OUTPUT_QUALITY`); not for
+        lossless formats.
+
+    Returns
+    -------
+    OutputFormat
+
+    Raises
+    ------
+    TpsvError
+        An extension tpsv does not write, an unknown name, a name the extension
+        contradicts, 16 bits for JPEG or WebP, a quality for PNG or TIFF, or a
+        quality outside 1-100; one line each.
+    """
+    text = os.fspath(path)
+    shown = display(text)
+    ext = "" if text == "-" else os.path.splitext(text)[1]
+    by_ext = OUTPUT_EXTENSIONS.get(ext.lower())
+    if ext and by_ext is None:
+        raise TpsvError(f"{shown}: tpsv does not write {display(ext)} images; name the file {_WRITTEN}")
+    by_name = None
+    if name is not None:
+        by_name = OUTPUT_NAMES.get(str(name).lower())
+        if by_name is None:
+            raise TpsvError(f"unknown image format {display(str(name))!r}; tpsv writes png, jpeg, webp or tiff")
+        if by_ext is not None and by_name != by_ext:
+            raise TpsvError(f"{shown} names a {by_ext} file, but the format asked for is {by_name}")
+    fmt = by_ext or by_name or "PNG"
+    if depth not in (8, 16):
+        raise TpsvError(f"image depth {depth} bits; tpsv writes 8 or 16 bits a sample")
+    if depth == 16 and fmt not in DEEP_OUTPUTS:
+        raise TpsvError(f"{fmt} holds 8 bits a sample; 16-bit output needs a PNG or TIFF file")
+    if quality is not None:
+        if fmt in DEEP_OUTPUTS:
+            raise TpsvError(f"a quality applies to JPEG and WebP output; {fmt} is lossless")
+        if not 1 <= quality <= 100:
+            raise TpsvError(f"quality {quality} is not in 1-100")
+    return OutputFormat(fmt, depth, OUTPUT_QUALITY if quality is None else int(quality))
+
+
+def _encoder_params(fmt: OutputFormat) -> tuple[str, list[int]]:
+    """OpenCV's extension and parameters for ``fmt``."""
+    if fmt.name == "JPEG":
+        sampling = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444 if fmt.quality >= FULL_CHROMA_QUALITY
+                    else cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420)
+        return ".jpg", [cv2.IMWRITE_JPEG_QUALITY, fmt.quality, cv2.IMWRITE_JPEG_OPTIMIZE, 1,
+                        cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling]
+    if fmt.name == "WebP":  # OpenCV's quality above 100 selects lossless
+        return ".webp", [cv2.IMWRITE_WEBP_QUALITY, 101 if fmt.quality >= 100 else fmt.quality]
+    if fmt.name == "TIFF":  # OpenCV's default: LZW with the horizontal predictor, read everywhere
+        return ".tiff", []
+    return ".png", []
+
+
+def encode_image(rgb: np.ndarray, fmt: OutputFormat = OutputFormat()) -> bytes:
+    """The file bytes of an RGB (or grey) image in ``fmt``.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3), (H, W, 4) or (H, W)
+        Float sRGB in ``[0, 1]`` (rounded by :func:`to_uint8` or
+        :func:`to_uint16`), or uint8; four channels are RGBA with straight
+        alpha, kept by PNG, WebP and TIFF, composited over white for JPEG.
+    fmt : OutputFormat
+        Default: 8-bit PNG.
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    TpsvError
+        A size the format cannot store, or the encoder failed.
+    """
+    fmt.check_size(rgb.shape[1], rgb.shape[0])
+    if rgb.ndim == 3 and rgb.shape[2] == 4 and fmt.name == "JPEG":
+        rgb = over_white(rgb)
+    img = to_uint16(rgb) if fmt.depth == 16 else to_uint8(rgb)
+    if img.ndim == 3:
+        img = np.ascontiguousarray(img[:, :, [2, 1, 0, 3][:img.shape[2]]])  # OpenCV's BGR(A)
+    ext, params = _encoder_params(fmt)
+    with quiet_stderr():  # libtiff and libwebp print their failures themselves
+        try:
+            ok, buf = cv2.imencode(ext, img, params)
+        except cv2.error:
+            ok = False
     if not ok:
-        raise TpsvError("PNG encoding failed")
+        raise TpsvError(f"{fmt.name} encoding failed")
     return buf.tobytes()
 
 
-def write_image(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write an RGB image as PNG atomically (``-``: stdout)."""
-    write_bytes_atomic(path, encode_png(rgb))
+def over_white(rgba: np.ndarray) -> np.ndarray:
+    """An RGBA image (straight alpha) composited over white: what a JPEG, which has no alpha, holds of it."""
+    rgba = rgba / np.float32(255) if rgba.dtype == np.uint8 else np.asarray(rgba, np.float32)
+    a = rgba[..., 3:4]
+    return rgba[..., :3] * a + (1.0 - a)
+
+
+def encode_png(rgb: np.ndarray) -> bytes:
+    """8-bit PNG bytes of an RGB image given as float in ``[0, 1]`` or uint8."""
+    return encode_image(rgb, OutputFormat())
+
+
+def write_image(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = None, depth: int = 8,
+                format: str | None = None) -> None:
+    """Write an RGB image atomically, in the format its extension names (``-``: stdout).
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.png``, ``.jpg``/``.jpeg``, ``.webp``, ``.tif``/``.tiff``; no
+        extension (or ``-``): ``format``, else PNG (:func:`output_format`).
+    rgb : ndarray
+        As :func:`encode_image` takes it.
+    quality : int, optional
+        JPEG and WebP: 1-100 (default :data:`OUTPUT_QUALITY`; WebP 100 is lossless).
+    depth : int
+        8, or 16 for PNG and TIFF.
+    format : str, optional
+        For a path without an extension.
+    """
+    fmt = output_format(path, format, depth, quality)
+    write_bytes_atomic(path, encode_image(rgb, fmt))
 
 
 def encode_labels(labels: np.ndarray) -> bytes:

@@ -12,16 +12,36 @@ def _as_float(img: np.ndarray) -> np.ndarray:
     return img.astype(np.float64)
 
 
+#: Values per band of :func:`mse` (its float64 temporaries are of a band, not of the image).
+MSE_BAND = 1 << 18
+
+
+def _levels(img: np.ndarray) -> np.ndarray:
+    """8-bit levels ``round(255 clip(x, 0, 1))`` of an image, as float64 (uint8: its values)."""
+    if img.dtype == np.uint8:
+        return img.astype(np.float64)
+    return np.round(np.clip(img.astype(np.float64), 0, 1) * 255.0)
+
+
 def mse(a: np.ndarray, b: np.ndarray) -> float:
     """Mean squared error of RGB in ``[0, 1]`` over the whole image (the paper's E).
 
-    Both images are quantised to 8 bits first, as a saved PNG would be.
+    Both images are quantised to 8 bits first, as a saved PNG would be. The
+    squared level differences are summed exactly (whole numbers in float64),
+    band by band of rows, so no float64 copy of the image is made.
     """
-    qa = np.round(np.clip(_as_float(a), 0, 1) * 255.0) / 255.0
-    qb = np.round(np.clip(_as_float(b), 0, 1) * 255.0) / 255.0
-    if qa.shape != qb.shape:
-        raise ValueError(f"shape mismatch {qa.shape} vs {qb.shape}")
-    return float(np.mean((qa - qb) ** 2))
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape:
+        raise ValueError(f"shape mismatch {a.shape} vs {b.shape}")
+    if a.size == 0:
+        return float("nan")
+    rows = max(1, MSE_BAND // max(a[:1].size, 1)) if a.ndim else 1
+    a2, b2 = (a, b) if a.ndim else (a.reshape(1), b.reshape(1))
+    total = 0.0
+    for r in range(0, a2.shape[0], rows):
+        d = (_levels(a2[r:r + rows]) - _levels(b2[r:r + rows])).ravel()
+        total += float(np.dot(d, d))  # whole numbers below 2^53: exact in any order
+    return total / (255.0 * 255.0 * a.size)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:

@@ -81,11 +81,16 @@ class Region:
     patch : Patch
         The region's Hermite patch; its surface covers every pixel of the
         region.
+    transparent : bool
+        The region is a hole in the picture (the fully transparent part of an
+        RGBA input): it renders with alpha 0, and a border with it is the
+        other region's anti-aliased edge in the alpha channel.
     """
 
     label: int
     outline: list[np.ndarray]
     patch: Patch
+    transparent: bool = False
 
 
 @dataclass

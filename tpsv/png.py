@@ -1,15 +1,16 @@
-"""A streaming PNG writer: 8-bit RGB rows in, PNG bytes out, a band of rows at a time.
+"""A streaming PNG writer: 8- or 16-bit RGB rows in, PNG bytes out, a band of rows at a time.
 
-For outputs too large to hold whole (``tpsv.render.raster.render_bands``):
+For outputs too large to hold whole (``tpsv.rendering.raster.render_bands``):
 memory stays in proportion to one band plus zlib's window, whatever the
 image size. Small images keep ``tpsv.image.encode_png`` (OpenCV), whose bytes
 the baselines pin.
 
 The file is the plainest valid PNG (ISO/IEC 15948): the signature, ``IHDR``
-(8-bit truecolour, no interlace), ``IDAT`` chunks of at most
+(8- or 16-bit truecolour, no interlace), ``IDAT`` chunks of at most
 :data:`IDAT_BYTES` holding one zlib stream, and ``IEND``. Every row is
 filtered with filter type 1 (Sub: each byte minus the byte one pixel to its
-left), which suits smooth renders and is a single vectorised subtraction.
+left), which suits smooth renders and is a single vectorised subtraction;
+16-bit samples are stored big-endian, as PNG wants.
 
 Example::
 
@@ -47,7 +48,7 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
 
 
 class PngWriter:
-    """Write an 8-bit RGB PNG row band by row band.
+    """Write an 8- or 16-bit RGB or RGBA PNG row band by row band.
 
     Parameters
     ----------
@@ -57,36 +58,52 @@ class PngWriter:
         Image size; exactly ``height`` rows must be written before :meth:`close`.
     level : int
         zlib compression level.
+    depth : int
+        Bits a sample: 8 (rows of uint8) or 16 (rows of uint16).
+    channels : int
+        3 (RGB, colour type 2) or 4 (RGBA with straight alpha, colour type 6).
     """
 
-    def __init__(self, write: Callable[[bytes], object], width: int, height: int, level: int = LEVEL):
+    def __init__(self, write: Callable[[bytes], object], width: int, height: int, level: int = LEVEL,
+                 depth: int = 8, channels: int = 3):
         width, height = int(width), int(height)
         if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
             raise TpsvError(f"a PNG of {width}x{height} px cannot be written")
-        self.width, self.height = width, height
+        if depth not in (8, 16):
+            raise TpsvError(f"a PNG of {depth} bits a sample cannot be written (8 or 16)")
+        if channels not in (3, 4):
+            raise TpsvError(f"a PNG of {channels} channels cannot be written (3 or 4)")
+        self.width, self.height, self.depth, self.channels = width, height, depth, channels
+        self._dtype = np.dtype(np.uint8 if depth == 8 else ">u2")
+        self._pixel = channels * self._dtype.itemsize  # bytes a pixel: what filter Sub looks back by
         self.rows_written = 0
         self._write = write
         self._z = zlib.compressobj(level)
         self._pending: list[bytes] = []
         self._pending_bytes = 0
         self._closed = False
-        # IHDR: width, height, bit depth 8, colour type 2 (RGB), compression 0, filter 0, interlace 0
-        write(SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)))
+        # IHDR: width, height, bit depth, colour type 2 (RGB) or 6 (RGBA), compression 0, filter 0, interlace 0
+        colour = 2 if channels == 3 else 6
+        write(SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)))
 
     def write(self, rows: np.ndarray) -> None:
-        """Append rows: uint8 ``(h, width, 3)`` (the next ``h`` rows of the image)."""
+        """Append rows: ``(h, width, channels)`` uint8, or uint16 at depth 16 (the next ``h`` rows of the image)."""
         rows = np.asarray(rows)
-        if rows.dtype != np.uint8 or rows.ndim != 3 or rows.shape[1:] != (self.width, 3):
-            raise TpsvError(f"PNG rows must be uint8 (h, {self.width}, 3), not {rows.dtype} {rows.shape}")
+        want = "uint8" if self.depth == 8 else "uint16"
+        c = self.channels
+        if rows.dtype != np.dtype(want) or rows.ndim != 3 or rows.shape[1:] != (self.width, c):
+            raise TpsvError(f"PNG rows must be {want} (h, {self.width}, {c}), not {rows.dtype} {rows.shape}")
         if self._closed or self.rows_written + rows.shape[0] > self.height:
             raise TpsvError(f"more rows than the {self.height} of the PNG")
-        step = max(1, _ROW_BYTES // (3 * self.width + 1))
+        px, row_bytes = self._pixel, self._pixel * self.width
+        step = max(1, _ROW_BYTES // (row_bytes + 1))
         for i in range(0, rows.shape[0], step):
-            part = rows[i:i + step].reshape(-1, 3 * self.width)
-            filt = np.empty((part.shape[0], 3 * self.width + 1), np.uint8)
+            part = rows[i:i + step].astype(self._dtype, copy=False).reshape(-1, c * self.width)
+            part = part.view(np.uint8)  # the file's bytes, big-endian at 16 bits
+            filt = np.empty((part.shape[0], row_bytes + 1), np.uint8)
             filt[:, 0] = 1  # Sub
-            filt[:, 1:4] = part[:, :3]
-            np.subtract(part[:, 3:], part[:, :-3], out=filt[:, 4:])  # modulo 256, as PNG wants
+            filt[:, 1:px + 1] = part[:, :px]
+            np.subtract(part[:, px:], part[:, :-px], out=filt[:, px + 1:])  # modulo 256, as PNG wants
             self._emit(self._z.compress(filt.tobytes()))
         self.rows_written += rows.shape[0]
 
@@ -116,16 +133,22 @@ class PngWriter:
         self._closed = True
 
 
-def png_chunks(width: int, height: int, bands: Iterable[tuple[int, np.ndarray]], level: int = LEVEL) -> Iterator[bytes]:
-    """PNG bytes, piece by piece, of the bands ``(y0, uint8 rows)`` given top to bottom.
+def png_chunks(width: int, height: int, bands: Iterable[tuple[int, np.ndarray]], level: int = LEVEL,
+               depth: int = 8, channels: int = 3) -> Iterator[bytes]:
+    """PNG bytes, piece by piece, of the bands ``(y0, rows)`` given top to bottom.
 
     Parameters
     ----------
     width, height : int
-    bands : iterable of (y0, ndarray (h, width, 3) uint8)
-        As ``tpsv.render.raster.render_bands`` yields them: consecutive, from row 0.
+    bands : iterable of (y0, ndarray (h, width, 3))
+        As ``tpsv.rendering.raster.render_bands`` yields them: consecutive, from
+        row 0; uint8, or uint16 at depth 16.
     level : int
         zlib level.
+    depth : int
+        Bits a sample, 8 or 16.
+    channels : int
+        3 (RGB) or 4 (RGBA).
 
     Yields
     ------
@@ -133,7 +156,7 @@ def png_chunks(width: int, height: int, bands: Iterable[tuple[int, np.ndarray]],
         Consecutive pieces of the file; together, the whole PNG.
     """
     out: list[bytes] = []
-    png = PngWriter(out.append, width, height, level)
+    png = PngWriter(out.append, width, height, level, depth, channels)
     for y0, rows in bands:
         if y0 != png.rows_written:
             raise TpsvError(f"PNG band starts at row {y0}, expected {png.rows_written}")
@@ -144,10 +167,11 @@ def png_chunks(width: int, height: int, bands: Iterable[tuple[int, np.ndarray]],
     yield from out
 
 
-def write_png(fh, width: int, height: int, bands: Iterable[tuple[int, np.ndarray]], level: int = LEVEL) -> int:
+def write_png(fh, width: int, height: int, bands: Iterable[tuple[int, np.ndarray]], level: int = LEVEL,
+              depth: int = 8) -> int:
     """Write the PNG of ``bands`` (see :func:`png_chunks`) to the binary file ``fh``; returns the bytes written."""
     n = 0
-    for piece in png_chunks(width, height, bands, level):
+    for piece in png_chunks(width, height, bands, level, depth):
         fh.write(piece)
         n += len(piece)
     return n

@@ -19,7 +19,7 @@ import sys
 from tpsv import codec
 from tpsv.cli.info import summary
 from tpsv.errors import TpsvFormatError
-from tpsv.render.raster import render
+from tpsv.rendering.raster import render
 
 from .mutate import MUTATORS, Case
 from .runner import warm_up

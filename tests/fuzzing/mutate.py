@@ -344,7 +344,7 @@ def mutate_section(case: Case, data: bytes, rng: random.Random) -> None:
 def _quantized_ops(q: quant.Quantized, rng: random.Random, ops: list) -> quant.Quantized:
     n, r = q.st.shape[0], len(q.labels)
     op = rng.choice(("pair", "kind", "st", "st_bits", "lab", "grid", "verts", "polys", "label", "param",
-                     "counts", "xy", "blur"))
+                     "counts", "xy", "blur", "alpha"))
     ops.append(op)
     if op == "pair" and n:
         pair = q.pair.copy()
@@ -409,6 +409,15 @@ def _quantized_ops(q: quant.Quantized, rng: random.Random, ops: list) -> quant.Q
         blur = np.array(rows, np.int64).clip(0, 2**32 - 1).reshape(-1, 3)
         blur[:, 2] = blur[:, 2].clip(0, 255)
         return dataclasses.replace(q, blur=blur)
+    if op == "alpha" and r:
+        # a region marked transparent or not (every one, none: then the flag and the key disagree)
+        clear = np.zeros(r, bool) if q.transparent is None else q.transparent.copy()
+        pick = rng.choice(("one", "all", "none"))
+        if pick == "one":
+            clear[rng.randrange(r)] ^= True
+        else:
+            clear[:] = pick == "all"
+        return dataclasses.replace(q, transparent=clear)
     return q
 
 

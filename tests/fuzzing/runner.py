@@ -378,7 +378,7 @@ def warm_up() -> None:
     import tpsv.cli.outputs  # noqa: F401
     from tpsv import codec
     from tpsv.edit import crossmap, deform, recolor, stylize  # noqa: F401
-    from tpsv.render.raster import render
+    from tpsv.rendering.raster import render
 
     from .seeds import two_regions
     for k in codec.SUPPORTED_KERNEL_SIZES:

@@ -86,6 +86,13 @@ def no_features() -> Model:
     return Model(m.width, m.height, m.regions, Features.empty(), m.params)
 
 
+def transparent_hole() -> Model:
+    """The two-region model with its right half transparent (format version 4, flag 2)."""
+    m = two_regions()
+    m.regions[1].transparent = True
+    return m
+
+
 def no_regions() -> Model:
     return Model(3, 2, [], Features.empty(), Params(kernel_size=16))
 
@@ -104,6 +111,7 @@ HAND_MODELS = {
     "one-pixel": one_pixel,
     "no-features": no_features,
     "no-regions": no_regions,
+    "transparent": transparent_hole,
     "fine-steps": fine_steps,
 }
 

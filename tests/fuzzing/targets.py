@@ -112,7 +112,7 @@ def _encode_edited(model) -> None:
 
 @_needs_model
 def t_render(s: State):
-    from tpsv.render.raster import render
+    from tpsv.rendering.raster import render
     render(s.model, width=RENDER_SIZE[0], height=RENDER_SIZE[1])
 
 

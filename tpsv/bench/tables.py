@@ -135,7 +135,7 @@ def _local_unpacked_seconds(model: Model) -> dict:
 
 def timing_table(model: Model, device: str) -> dict:
     """Table I: construction + solve + rasterisation, three ways."""
-    from ..render.raster import render_timed
+    from ..rendering.raster import render_timed
 
     _, t = render_timed(model, device=device, repeat=3)
     ks = tps.group_kernels(model)
@@ -152,27 +152,42 @@ def timing_table(model: Model, device: str) -> dict:
     }
 
 
-def device_table(model: Model, device: str, size: tuple[int, int] = (1920, 1080), repeat: int = 10) -> dict:
-    """A full-HD render on ``device``: stage timings (best of ``repeat``) and the
-    largest difference from the CPU render of the same size."""
-    from ..render.raster import render, render_timed
+#: Output sizes of the device table: full HD and 4K UHD.
+DEVICE_SIZES = ((1920, 1080), (3840, 2160))
 
-    img, t = render_timed(model, width=size[0], height=size[1], device=device, repeat=repeat)
-    ref = render(model, width=size[0], height=size[1], device="cpu")
-    return {
-        "device": device,
-        "size": list(size),
-        "stages_ms": {k: v * 1e3 for k, v in t.items()},
-        "device_ms": (t["patchmap"] + t["solve"] + t["rasterise"] + t.get("borders", 0.0)) * 1e3,
-        "max_abs_diff_vs_cpu": float(np.abs(img - ref).max()),
-    }
+
+def device_table(model: Model, device: str, sizes=DEVICE_SIZES, repeat: int = 10) -> dict:
+    """Renders on ``device`` at each of ``sizes``: stage timings (best of
+    ``repeat``), end to end, and the largest difference from the CPU render.
+
+    ``end_to_end_ms`` is every stage from a loaded model to the image in device
+    memory (host stages and uploads included, the download not: a viewer keeps
+    the frame on the GPU, ``render(..., keep_on_device=True)``);
+    ``device_ms`` the device stages alone.
+    """
+    from ..rendering.raster import render, render_timed
+
+    rows = []
+    for size in sizes:
+        img, t = render_timed(model, width=size[0], height=size[1], device=device, repeat=repeat)
+        ref = render(model, width=size[0], height=size[1], device="cpu")
+        rows.append({
+            "size": list(size),
+            "stages_ms": {k: v * 1e3 for k, v in t.items()},
+            "device_ms": (t["patchmap"] + t["solve"] + t["rasterise"] + t.get("borders", 0.0)
+                          + t.get("detail", 0.0)) * 1e3,
+            "end_to_end_ms": (t["total"] - t["download"]) * 1e3,
+            "max_abs_diff_vs_cpu": float(np.abs(img - ref).max()),
+        })
+        del img, ref
+    return {"device": device, "sizes": rows}
 
 
 def edit_table(model: Model, device: str) -> dict:
-    """Rebuild + render seconds of typical edits through :class:`tpsv.render.live.LiveImage`
+    """Rebuild + render seconds of typical edits through :class:`tpsv.rendering.live.LiveImage`
     (only kernels whose features changed are solved again), best of 3."""
     from ..edit.deform import affine
-    from ..render.live import LiveImage
+    from ..rendering.live import LiveImage
     from ..edit.recolor import recolor
 
     if not model.regions or not len(model.features):
@@ -200,13 +215,13 @@ def edit_table(model: Model, device: str) -> dict:
 
 
 def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
-    """Area-downscale by ``factor``, magnify back (``tpsv.render.magnify``: dense model,
+    """Area-downscale by ``factor``, magnify back (``tpsv.rendering.magnify``: dense model,
     back-projected colours, one region); compare with the original."""
     h, w = rgb.shape[:2]
     h, w = h - h % factor, w - w % factor
     ref = rgb[:h, :w]
     small = baseline.downscale_area(ref, factor)
-    from ..render.magnify import magnify_raster
+    from ..rendering.magnify import magnify_raster
 
     _, big = magnify_raster(small, (w, h), device=device)
     rows = {"tpsv": big}
@@ -236,7 +251,7 @@ def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations:
         "bicubic": ..., "lanczos": ...}], "mean": {method: {"psnr", "gmsd"}}}``
     """
     from .shapes import shapes
-    from ..render.raster import render
+    from ..rendering.raster import render
 
     rows = []
     for seed in range(variants):
@@ -333,7 +348,7 @@ def bench_image(
 
     model = res.model
     t0 = time.perf_counter()
-    from ..render.raster import render
+    from ..rendering.raster import render
 
     render(model, device=device)
     render_seconds = time.perf_counter() - t0
@@ -407,6 +422,27 @@ def _fmt(v, spec=".2f") -> str:
     return format(v, spec)
 
 
+def device_table_text(results: list[dict], device: str) -> str:
+    """The printed device table of the results that have one (``device_check``)."""
+    out = []
+    out.append(f"Renders on {device}: ms per stage (best of 10), end to end, max |{device} - cpu|")
+    out.append(f"{'image':<12}{'size':>10}{'patchmap':>9}{'solve':>7}{'raster':>7}{'borders':>8}{'detail':>7}"
+               f"{'device':>7}{'regions*':>9}{'edges*':>8}{'upload*':>8}{'group*':>7}{'e2e':>8}{'max diff':>10}")
+    for r in results:
+        for d in r["device_check"]["sizes"]:
+            st = d["stages_ms"]
+            up = st.get("upload_regions", 0.0) + st.get("upload", 0.0)
+            out.append(f"{r['name']:<12}{'x'.join(map(str, d['size'])):>10}{st['patchmap']:>9.2f}{st['solve']:>7.2f}"
+                       f"{st['rasterise']:>7.2f}{st.get('borders', 0.0):>8.2f}{st.get('detail', 0.0):>7.2f}"
+                       f"{d['device_ms']:>7.2f}{st['regions']:>9.1f}{st.get('edges', 0.0):>8.1f}{up:>8.1f}"
+                       f"{st['group']:>7.1f}{d['end_to_end_ms']:>8.1f}{d['max_abs_diff_vs_cpu']:>10.2e}")
+    out.append("  * host stages and host-to-device copies (outline rasterisation, border pixels and their")
+    out.append("    coverage, region map and kernel upload, kernel grouping); 'device' is the sum of the")
+    out.append("    device stages (inverse patch map, build/solve, rasterise, border mix, detail); 'e2e' every")
+    out.append("    stage from a loaded model to the image in device memory (the download not included)")
+    return "\n".join(out)
+
+
 def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
     """The printed report (``edges``: an :func:`edge_table`, printed after the magnification table)."""
     out = []
@@ -453,20 +489,7 @@ def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
     devs = [r for r in results if r.get("device_check")]
     if devs:
         out.append("")
-        out.append(f"Full HD (1920x1080) on {device}: ms per stage (best of 10), max |{device} - cpu|")
-        out.append(f"{'image':<12}{'patchmap':>10}{'solve':>8}{'raster':>8}{'borders':>9}{'device':>8}{'regions*':>10}"
-                   f"{'edges*':>8}{'upload*':>9}{'group*':>8}{'max diff':>10}")
-        for r in devs:
-            d = r["device_check"]
-            st = d["stages_ms"]
-            up = st.get("upload_regions", 0.0) + st.get("upload", 0.0)
-            out.append(f"{r['name']:<12}{st['patchmap']:>10.2f}{st['solve']:>8.2f}{st['rasterise']:>8.2f}"
-                       f"{st.get('borders', 0.0):>9.2f}{d['device_ms']:>8.2f}{st['regions']:>10.1f}"
-                       f"{st.get('edges', 0.0):>8.1f}{up:>9.1f}{st['group']:>8.1f}{d['max_abs_diff_vs_cpu']:>10.2e}")
-        out.append("  * host stages and host-to-device copies (outline rasterisation, border pixels and their")
-        out.append("    coverage, region map and kernel upload, kernel grouping), done once per model and output")
-        out.append("    size; 'device' is the sum of the device stages: inverse patch map + build/solve +")
-        out.append("    rasterise + border mix")
+        out.append(device_table_text(devs, device))
     eds = [r for r in results if r.get("edits")]
     if eds:
         out.append("")

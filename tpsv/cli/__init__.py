@@ -180,6 +180,16 @@ def progress_bar(ctx: click.Context, length: int, label: str, enabled: bool = Tr
         yield bar
 
 
+def advance(bar):
+    """A ``progress(done, total)`` callback moving ``bar`` (None, no bar shown: does nothing) to ``done``."""
+
+    def progress(done, total):
+        if bar is not None:
+            bar.update(done - bar.pos)
+
+    return progress
+
+
 _STOP_LINE = threading.Lock()
 _stop_reported = False
 #: Seconds the main thread has to stop by itself before the watchdog stops the process.

@@ -1,3 +1,3 @@
 """Imports every subcommand module so that each attaches itself to the group."""
 
-from . import bench, edit, info, render, segment, vectorize  # noqa: F401
+from . import batch, bench, edit, export, info, render, segment, vectorize  # noqa: F401

@@ -1,9 +1,10 @@
-"""Editing in vector space: ``recolor``, ``crossmap``, ``deform`` (.tpsv -> .tpsv) and ``stylize`` (.tpsv -> PNG).
+"""Editing in vector space: ``recolor``, ``crossmap``, ``deform`` (.tpsv -> .tpsv) and ``stylize`` (.tpsv -> image).
 
 Each edit reads a .tpsv (``-``: stdin) and writes a .tpsv (``-``: stdout), so
 edits chain in a pipeline; ``--render P.png [--scale S]`` also writes a
-picture of the result. Every output is claimed before any work and written
-only once everything succeeded (:mod:`tpsv.cli.outputs`): a failed run
+picture of the result (PNG, JPEG, WebP or TIFF by its extension, with
+``--quality`` and ``--depth``; ``-``: PNG on stdout). Every output is claimed
+before any work and written only once everything succeeded (:mod:`tpsv.cli.outputs`): a failed run
 changes no file. Malformed option values are usage errors (exit
 2, from the value types of :mod:`tpsv.cli.options`); values that do not fit
 the model (an unknown region, a point outside the image, a deformation that
@@ -18,17 +19,20 @@ import time
 import click
 
 from . import main, say
-from .options import (AFFINE, COLOR, FINITE, GRID, MATRIX, MOVE, NON_NEGATIVE, PAIR, POINT, POSITIVE,
+from .options import (AFFINE, COLOR, FINITE, GRID, IMAGE_HELP, MATRIX, MOVE, NON_NEGATIVE, PAIR, POINT, POSITIVE,
                       STROKE_WIDTH, TEMPLATE, UNIT_INTERVAL, check_json_target, device_for, device_option,
-                      emit_json, json_option, output_option, render_options, scale_option)
+                      emit_json, image_format, image_options, json_option, output_option, render_options,
+                      scale_option)
 from .outputs import check_targets, claim_outputs, encode_model, read_json
+from .render import render_file
 from .. import codec
 from ..edit import crossmap as cm, deform as df, recolor as rc, stylize as st
-from ..image import encode_png
-from ..render.raster import render
+from ..image import OutputFormat, encode_image
+from ..rendering.raster import output_size
 
 
-def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: float) -> dict:
+def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: float,
+               fmt: OutputFormat | None = None) -> dict:
     """Encode (and render) the edited model and stage the outputs; returns the summary.
 
     Parameters
@@ -38,7 +42,7 @@ def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: f
     model : Model
         The edited model.
     output, render_path : str, str or None
-        The .tpsv to write and the optional PNG of ``model`` at ``scale``.
+        The .tpsv to write and the optional picture of ``model`` at ``scale``.
     scale : float
     device : str
         Warp device of the render.
@@ -46,6 +50,8 @@ def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: f
         The edit's own summary figures.
     t0 : float
         ``time.perf_counter()`` at the start of the command.
+    fmt : OutputFormat, optional
+        The picture's format (default: 8-bit PNG).
 
     Returns
     -------
@@ -55,7 +61,8 @@ def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: f
     data = encode_model(model)
     out.write(output, data)
     if render_path is not None:
-        out.write(render_path, encode_png(render(model, scale=scale, device=device)))
+        W, H = output_size(model, scale=scale)
+        out.write(render_path, render_file(model, W, H, fmt or OutputFormat(), device=device))
     s = {"width": model.width, "height": model.height, "regions": len(model.regions),
          "features": len(model.features), "bytes": len(data), "seconds": time.perf_counter() - t0, **info}
     if render_path is not None:
@@ -99,7 +106,7 @@ def report_edit(ctx, output, s: dict, info: dict, as_json: bool) -> None:
 @json_option
 @click.pass_context
 def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_ab, lightness, matrix,
-            matrix_space, harmonize, render_path, scale, device, as_json):
+            matrix_space, harmonize, render_path, scale, quality, depth, device, as_json):
     """Edit the colours of selected features (paper VII-B)."""
     t0 = time.perf_counter()
     check_targets(as_json, output, render_path)
@@ -111,13 +118,14 @@ def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_
     if not (hue or lightness or shift != (0.0, 0.0) or matrix is not None or harmonize):
         raise click.UsageError("nothing to do: give --hue, --shift-ab, --lightness, --matrix or --harmonize")
     with claim_outputs([path], ("-o", output), ("--render", render_path)) as out:
+        fmt = image_format(render_path, quality=quality, depth=depth, option="--render")
         device = device_for(ctx, device)
         model = codec.load(path)
         mask = rc.select(model, at=at, color=color, radius=radius, tolerance=tolerance, region=region)
         done = rc.recolor_selected(model, mask, hue=hue, shift_ab=shift, lightness=lightness, matrix=matrix,
                                    matrix_space=matrix_space, harmonize=harmonize)
         info = done.summary()
-        s = stage_edit(out, done.model, output, render_path, scale, device, info, t0)
+        s = stage_edit(out, done.model, output, render_path, scale, device, info, t0, fmt)
     report_edit(ctx, output, s, info, as_json)
 
 
@@ -142,13 +150,14 @@ def recolor(ctx, path, output, at, color, radius, tolerance, region, hue, shift_
 @json_option
 @click.pass_context
 def crossmap(ctx, path, output, target_region, source, source_region, rotate, flip, alpha, match_stats,
-             render_path, scale, device, as_json):
+             render_path, scale, quality, depth, device, as_json):
     """Map a source region's features onto a target region (paper VII-C)."""
     t0 = time.perf_counter()
     check_targets(as_json, output, render_path)
     if path == "-" and source == "-":
         raise click.UsageError("PATH and --source cannot both be stdin ('-')")
     with claim_outputs([path, source], ("-o", output), ("--render", render_path)) as out:
+        fmt = image_format(render_path, quality=quality, depth=depth, option="--render")
         device = device_for(ctx, device)
         target = codec.load(path)
         src = target if source is None else codec.load(source)
@@ -158,7 +167,7 @@ def crossmap(ctx, path, output, target_region, source, source_region, rotate, fl
         info = {"mode": "replace" if alpha is None else "blend",
                 "mapped": int((src.features.region == sr).sum()),
                 "target_features": int((mapped.features.region == target_region).sum())}
-        s = stage_edit(out, mapped, output, render_path, scale, device, info, t0)
+        s = stage_edit(out, mapped, output, render_path, scale, device, info, t0, fmt)
     report_edit(ctx, output, s, info, as_json)
 
 
@@ -187,7 +196,7 @@ def crossmap(ctx, path, output, target_region, source, source_region, rotate, fl
 @json_option
 @click.pass_context
 def deform(ctx, path, output, moves, affines, about, grids, derivatives, keep_order, detach, export_grid,
-           render_path, scale, device, as_json):
+           render_path, scale, quality, depth, device, as_json):
     """Deform region patches; features ride along in (S, T) (paper VII-D).
 
     Edits apply in the order --grid, --affine, --move.
@@ -202,6 +211,7 @@ def deform(ctx, path, output, moves, affines, about, grids, derivatives, keep_or
     if not (moves or affines or grids):
         raise click.UsageError("nothing to do: give --move, --affine or --grid")
     with claim_outputs([path, *(g for _, g in grids)], ("-o", output), ("--render", render_path)) as out:
+        fmt = image_format(render_path, quality=quality, depth=depth, option="--render")
         device = device_for(ctx, device)
         model = codec.load(path)
         attach = not detach
@@ -213,7 +223,7 @@ def deform(ctx, path, output, moves, affines, about, grids, derivatives, keep_or
             model = df.move_points(model, list(moves), derivatives=derivatives, keep_order=keep_order,
                                    attach=attach)
         info = {"deformed": sorted({r for r, *_ in moves} | {r for r, _ in affines} | {r for r, _ in grids})}
-        s = stage_edit(out, model, output, render_path, scale, device, info, t0)
+        s = stage_edit(out, model, output, render_path, scale, device, info, t0, fmt)
     report_edit(ctx, output, s, info, as_json)
 
 
@@ -231,7 +241,7 @@ def _export_grid(path: str, output: str, region: int, as_json: bool) -> None:
 
 @main.command()
 @click.argument("path", type=click.Path(dir_okay=False, allow_dash=True))
-@output_option("PNG to write ('-': stdout).")
+@output_option(f"Image to write: {IMAGE_HELP} ('-': stdout).")
 @click.option("--level", type=click.IntRange(0, st.MAX_LEVEL), default=2, show_default=True,
               help="Abstraction level (0: none; each level thins and quantises more).")
 @click.option("--strokes/--no-strokes", default=True, show_default=True,
@@ -241,18 +251,21 @@ def _export_grid(path: str, output: str, region: int, as_json: bool) -> None:
 @scale_option("Output scale.")
 @click.option("--abstract-out", type=click.Path(dir_okay=False), default=None,
               help="Also write the abstracted model as a .tpsv.")
+@image_options(depth=False)
 @device_option
 @json_option
 @click.pass_context
-def stylize(ctx, path, output, level, strokes, stroke_width, scale, abstract_out, device, as_json):
-    """Abstraction and strokes (paper VII-E); writes an image."""
+def stylize(ctx, path, output, level, strokes, stroke_width, scale, abstract_out, format_name, quality, device,
+            as_json):
+    """Abstraction and strokes (paper VII-E); writes an image (8-bit PNG, JPEG, WebP or TIFF)."""
     t0 = time.perf_counter()
     check_targets(as_json, output, abstract_out, "--abstract-out")
     with claim_outputs([path], ("-o", output), ("--abstract-out", abstract_out)) as out:
+        fmt = image_format(output, format_name, quality)
         device = device_for(ctx, device)
         done = st.stylize_model(codec.load(path), level, with_strokes=strokes, stroke_width=stroke_width,
                                 scale=scale, device=device)
-        out.write(output, encode_png(done.image))
+        out.write(output, encode_image(done.image, fmt))
         if abstract_out:
             out.write(abstract_out, encode_model(done.model))
     h, w = done.image.shape[:2]

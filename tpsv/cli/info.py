@@ -33,6 +33,8 @@ def summary(data: bytes) -> dict:
         "bpp": 8.0 * len(data) / (model.width * model.height),
         "sections": codec.section_sizes(data),
         "grids": [list(r.patch.shape) for r in model.regions],
+        # regions that are holes in the picture (the transparent part of an RGBA input)
+        "transparent": [i for i, r in enumerate(model.regions) if r.transparent],
         # soft borders: (region a, region b, edge width in px); the others are sharp
         "edge_widths": [[int(a), int(b), float(w)] for a, b, w in model.blur],
         "quality": model.params.extra.get("quality"),
@@ -75,7 +77,8 @@ def info(path: str, as_json: bool) -> None:
     extra = params.pop("extra")
     grids = ", ".join("x".join(map(str, g)) for g in s["grids"][:8]) + (" ..." if len(s["grids"]) > 8 else "")
     click.echo(f"{display(path)}: {s['width']}x{s['height']} px, {s['bytes']} bytes ({s['bpp']:.3f} bpp)")
-    click.echo(f"  regions   {s['regions']}  (control grids {grids})")
+    clear = f", {len(s['transparent'])} transparent" if s["transparent"] else ""
+    click.echo(f"  regions   {s['regions']}{clear}  (control grids {grids})")
     click.echo(f"  features  {s['features']}  ({s['curvilinear']} curvilinear, {s['gradation']} gradation)")
     widths = [w for _, _, w in s["edge_widths"]]
     if widths:

@@ -5,8 +5,8 @@ Each value syntax of the command line is a click :class:`~click.ParamType`
 ``PAIR``, the number ranges ``POSITIVE``...), so a malformed value is a usage
 error (exit 2, "Invalid value for '--at': ...") raised before any work, and
 command bodies receive parsed values. Options several commands share
-(``-o/--output``, ``--json``, ``--device``, ``--render``/``--scale``) are
-defined here once.
+(``-o/--output``, ``--json``, ``--device``, ``--render``/``--scale``, the
+image outputs' ``--format``/``--quality``/``--depth``) are defined here once.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from ..edit.recolor import TEMPLATES
 from ..errors import TpsvError
 from ..fileio import display
 from ..gpu import resolve_device
-from ..render.raster import MAX_SIDE
+from ..image import OUTPUT_NAMES, OUTPUT_QUALITY, OutputFormat, output_format
+from ..rendering.raster import MAX_SIDE
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
@@ -225,7 +226,7 @@ FINITE = BoundedFloat(math.isfinite, "be a finite number")
 UNIT_INTERVAL = BoundedFloat(lambda v: 0.0 <= v <= 1.0, "lie in [0, 1]")
 #: An output scale or magnification factor: a larger one cannot give an output
 #: of at most ``MAX_SIDE`` pixels a side even from a 1-pixel model, and
-#: ``tpsv.render.raster.output_size`` checks the real size with one line.
+#: ``tpsv.rendering.raster.output_size`` checks the real size with one line.
 SCALE = BoundedFloat(lambda v: 0 < v <= MAX_SIDE, f"be a positive number up to {MAX_SIDE}")
 #: A stroke width in pixels at scale 1 (wider strokes cover any image).
 STROKE_WIDTH = BoundedFloat(lambda v: 0 < v <= 1000, "be a positive number up to 1000")
@@ -233,6 +234,12 @@ STROKE_WIDTH = BoundedFloat(lambda v: 0 < v <= 1000, "be a positive number up to
 KERNEL_SIZE = IntChoice(codec.SUPPORTED_KERNEL_SIZES)
 #: Random seeds (numpy's generators take any non-negative integer).
 SEED = click.IntRange(0, 2**63 - 1)
+#: JPEG and WebP quality of an image output.
+IMAGE_QUALITY = click.IntRange(1, 100)
+#: Bits a sample of an image output.
+DEPTH = IntChoice((8, 16))
+#: Image format names (``--format``), for outputs without an extension.
+IMAGE_FORMAT = click.Choice(sorted(OUTPUT_NAMES), case_sensitive=False)
 
 
 # --------------------------------------------------------------------------- shared options
@@ -257,15 +264,83 @@ def scale_option(help_text: str, default: float | None = 1.0, kind: click.ParamT
     return click.option("--scale", type=kind, default=default, show_default=default is not None, help=help_text)
 
 
+#: What an image output's help says about formats.
+IMAGE_HELP = ".png, .jpg/.jpeg, .webp or .tif/.tiff by extension"
+
+
+def quality_option(what: str = "the output"):
+    """``--quality``: JPEG and WebP quality of an image output."""
+    return click.option("--quality", type=IMAGE_QUALITY, default=None,
+                        help=f"JPEG or WebP quality of {what}, 1-100 (WebP 100: lossless) "
+                             f"[default: {OUTPUT_QUALITY}].")
+
+
+def depth_option(what: str = "the output"):
+    """``--depth``: bits a sample of a PNG or TIFF image output."""
+    return click.option("--depth", type=DEPTH, default=8, show_default=True,
+                        help=f"Bits a sample of {what} (16: PNG and TIFF only).")
+
+
+def image_options(depth: bool = True):
+    """``--format``, ``--quality`` (and ``--depth``) of a command whose ``-o`` is an image."""
+
+    def decorate(f):
+        if depth:
+            f = depth_option()(f)
+        f = quality_option()(f)
+        return click.option("--format", "format_name", type=IMAGE_FORMAT, default=None,
+                            help="Format of an output without extension, such as '-' (stdout) [default: png].")(f)
+
+    return decorate
+
+
 def render_options(f):
-    """``--render P.png`` and ``--scale``: the edits' optional picture of the result."""
+    """``--render P.png``, ``--scale``, ``--quality`` and ``--depth``: the edits' optional picture of the result."""
+    f = depth_option("the --render picture")(f)
+    f = quality_option("the --render picture")(f)
     f = scale_option("Scale of the --render picture.")(f)
     f = click.option("--render", "render_path", type=click.Path(dir_okay=False, allow_dash=True), default=None,
-                     help="Also write a PNG of the result ('-': stdout).")(f)
+                     help=f"Also write a picture of the result: {IMAGE_HELP} ('-': PNG on stdout).")(f)
     return f
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+def image_format(path: str | None, name: str | None = None, quality: int | None = None, depth: int = 8,
+                 option: str = "-o") -> OutputFormat | None:
+    """The format of an image output (:func:`tpsv.image.output_format`), checked before any work.
+
+    Parameters
+    ----------
+    path : str or None
+        The output path; None (an optional output not asked for) refuses a
+        ``quality`` or a ``depth`` of 16 given for it.
+    name : str, optional
+        ``--format``.
+    quality, depth : int
+        ``--quality`` and ``--depth``.
+    option : str
+        The output's option, for the messages.
+
+    Returns
+    -------
+    OutputFormat or None
+        None when ``path`` is None.
+
+    Raises
+    ------
+    click.UsageError
+        An extension tpsv does not write, options that do not fit the format.
+    """
+    if path is None:
+        if quality is not None or depth != 8:
+            raise click.UsageError(f"--quality and --depth describe the {option} picture; give {option}")
+        return None
+    try:
+        return output_format(path, name, depth, quality)
+    except TpsvError as exc:
+        raise click.UsageError(str(exc)) from None
 
 
 def device_for(ctx: click.Context, device: str | None) -> str:

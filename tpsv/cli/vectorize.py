@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import click
 
-from . import main, progress_bar, say
-from .options import (FINITE_NON_NEGATIVE, KERNEL_SIZE, SEED, check_json_target, device_for, device_option,
-                      emit_json, json_option, output_option)
+from . import advance, main, progress_bar, say
+from .options import (FINITE_NON_NEGATIVE, IMAGE_HELP, KERNEL_SIZE, SEED, check_json_target, device_for,
+                      device_option, emit_json, image_format, json_option, output_option)
 from .outputs import claim_outputs
 from .. import codec, metrics
-from ..encode.rate import DEFAULT_QUALITY, encode_quality
+from ..encode.rate import DEFAULT_QUALITY, MAX_TRIALS, encode_quality
 from ..encode.vectorize import scheme_params, vectorize as vectorize_image
 from ..errors import TpsvError
-from ..image import encode_png, read_image, read_labels
+from ..image import encode_image, read_image_alpha, read_labels
 from ..model import CURVILINEAR, Params
-from ..render.preview import draw_preview
+from ..rendering.preview import draw_preview
 
 
 def vectorize_options(f):
@@ -74,22 +74,20 @@ def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel
     if thresholds and any(v is not None for v in rated):
         raise TpsvError("--quality, --target-psnr and --max-bytes choose a quality; they do not go with "
                         "--search, --no-search, --canny, --super or --plain")
-    rgb = read_image(image)
+    rgb, alpha = read_image_alpha(image)  # a transparent part becomes transparent regions
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
     params = scheme_params("paper" if plain else "tpsv", kernel_size=kernel_size, smoothing=smoothing)
     if not thresholds:
-        return rgb, encode_quality(rgb, lab, quality=quality, target_psnr=target_psnr, max_bytes=max_bytes,
-                                   detail=detail, seed=seed, params=params, device=device, outlines=outlines)
+        total = 1 + (MAX_TRIALS if (target_psnr is not None or max_bytes is not None) else 1)
+        with progress_bar(ctx, total, "vectorize") as bar:
+            return rgb, encode_quality(rgb, lab, quality=quality, target_psnr=target_psnr, max_bytes=max_bytes,
+                                       detail=detail, seed=seed, params=params, device=device, outlines=outlines,
+                                       alpha=alpha, progress=advance(bar))
     search = True if search is None else search
     with progress_bar(ctx, iterations, "search", enabled=search) as bar:
-
-        def progress(done, total):
-            if bar is not None:
-                bar.update(done - bar.pos)
-
         result = vectorize_image(
             rgb, lab, t_canny=t_canny, t_super=t_super, search=search, iterations=iterations,
-            seed=seed, params=params, device=device, progress=progress, outlines=outlines,
+            seed=seed, params=params, device=device, progress=advance(bar), outlines=outlines, alpha=alpha,
         )
     return rgb, result
 
@@ -126,7 +124,7 @@ def summary(rgb, result) -> dict:
 @output_option(".tpsv file to write ('-': stdout).")
 @vectorize_options
 @click.option("--preview", type=click.Path(dir_okay=False), default=None,
-              help="Write patches and features over the photo (like the paper's Fig. 1).")
+              help=f"Write patches and features over the photo (like the paper's Fig. 1): {IMAGE_HELP}.")
 @device_option
 @json_option
 @click.pass_context
@@ -140,13 +138,14 @@ def vectorize(ctx, image, output, labels, seed, quality, target_psnr, max_bytes,
     """
     check_json_target(as_json, output)
     with claim_outputs([image, labels], ("-o", output), ("--preview", preview)) as out:
+        preview_format = image_format(preview, option="--preview")  # JPEG and WebP at tpsv.image.OUTPUT_QUALITY
         device = device_for(ctx, device)
         rgb, result = run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel_size,
                                     smoothing, search, device, plain=plain, outlines=outlines, quality=quality,
                                     target_psnr=target_psnr, max_bytes=max_bytes, detail=detail)
         out.write(output, result.data)
         if preview:
-            out.write(preview, encode_png(draw_preview(rgb, result.model)))
+            out.write(preview, encode_image(draw_preview(rgb, result.model), preview_format))
     s = summary(rgb, result)
     if as_json:
         emit_json(s)

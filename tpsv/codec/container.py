@@ -94,7 +94,9 @@ def encode(model: Model) -> bytes:
         comp = cctx.compress(raw)
         tail = layout.DETAIL_SIZES.pack(len(comp), len(raw)) + comp
     header = layout.Header(
-        version=layout.VERSION, flags=layout.FLAG_DETAIL if detail is not None else 0, width=q.width, height=q.height,
+        version=layout.VERSION, flags=(layout.FLAG_DETAIL if detail is not None else 0)
+        | (layout.FLAG_ALPHA if q.transparent is not None and q.transparent.any() else 0),
+        width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
         vertices=int(q.xy.shape[0]), ctrl_points=int(q.ctrl.size // 8),
         features=int(q.st.shape[0]),

@@ -18,10 +18,12 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 3
+VERSION = 4
 #: Header flag (version 3): a detail section follows the features section,
 #: preceded by its compressed and raw sizes (two little-endian uint32).
 FLAG_DETAIL = 1
+#: Header flag (version 4): some regions are transparent (the regions section's ``alpha``).
+FLAG_ALPHA = 2
 DETAIL_SIZES = struct.Struct("<II")
 
 #: Little-endian header: magic, version, flags, width, height, 5 counts,
@@ -114,6 +116,10 @@ class Header:
         return bool(self.flags & FLAG_DETAIL)
 
     @property
+    def has_alpha(self) -> bool:
+        return bool(self.flags & FLAG_ALPHA)
+
+    @property
     def detail_offset(self) -> int:
         """Where the detail section's sizes start (after the three sections)."""
         return HEADER_SIZE + sum(self.compressed)
@@ -156,6 +162,8 @@ def raw_size_bounds(h: Header) -> tuple[int, int, int]:
         regions += 9 + 9 * h.vertices  # edge widths: count, then at most V pairs of 9 bytes
     else:
         regions += 4 * h.polygons + 8 * h.vertices  # vertices per polygon, x, y as 32-bit
+    if h.has_alpha:
+        regions += 16 + (h.regions + 7) // 8  # key, bin header, a bit per region
     features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features
     return params, regions, features
 
@@ -165,6 +173,11 @@ def detail_raw_bound(h: Header) -> int:
     per region, and a texture at most the canvas whose AVIF file is at most
     what lossless 10-bit coding of noise takes (under 4 bytes a pixel)."""
     return SECTION_OVERHEAD + 25 * h.regions + 8 * h.width * h.height + 65536
+
+
+def known_flags(version: int) -> int:
+    """The header flags ``version`` defines."""
+    return (FLAG_DETAIL if version >= 3 else 0) | (FLAG_ALPHA if version >= 4 else 0)
 
 
 def parse_header(data: bytes | memoryview) -> Header:
@@ -208,7 +221,7 @@ def parse_header(data: bytes | memoryview) -> Header:
      features, c0, r0, c1, r1, c2, r2, _payload_crc, header_crc) = fields
     if zlib.crc32(data[:HEADER_CRC_OFFSET]) != header_crc:
         raise TpsvFormatError("corrupt header: header checksum mismatch")
-    known = FLAG_DETAIL if version >= 3 else 0
+    known = known_flags(version)
     if flags & ~known:
         raise TpsvFormatError(f"unsupported flags 0x{flags:04x} (version {version} defines 0x{known:04x})")
     h = Header(version, flags, width, height, regions, polygons, vertices,

@@ -107,6 +107,8 @@ class Quantized:
     kind: np.ndarray
     pair: np.ndarray
     blur: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    #: Per region: transparent (``Region.transparent``; version 4, else all False). None: all False.
+    transparent: np.ndarray | None = None
 
 
 def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) -> int:
@@ -190,6 +192,7 @@ def from_model(model: Model) -> Quantized:
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
         xy=xy, ctrl=ctrl, feature_counts=counts, st_bits=st_bits, st=st, lab=lab,
         kind=kind, pair=pair, blur=_quantize_blur(getattr(model, "blur", None), len(regions)),
+        transparent=np.array([bool(getattr(r, "transparent", False)) for r in regions], bool),
     )
 
 
@@ -562,9 +565,11 @@ def _dequantize_regions(q: Quantized) -> list[Region]:
     ctrls = _split(q.ctrl.astype(np.float64) / CTRL_SCALE, q.grid.prod(axis=1) * 8)
     poly_start = np.concatenate([[0], np.cumsum(q.poly_counts)]).tolist()
     regions = []
+    clear = np.zeros(len(q.labels), bool) if q.transparent is None else q.transparent
     for r, (label, (m, n)) in enumerate(zip(q.labels, q.grid.tolist())):
         outline = polys[poly_start[r]:poly_start[r + 1]]
-        regions.append(Region(label=label, outline=outline, patch=Patch(ctrls[r].reshape(m, n, 4, 2))))
+        regions.append(Region(label=label, outline=outline, patch=Patch(ctrls[r].reshape(m, n, 4, 2)),
+                              transparent=bool(clear[r])))
     return regions
 
 

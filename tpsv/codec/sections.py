@@ -36,6 +36,7 @@ GEOMETRY_LAG = 1
 
 #: Version 1 stored every polygon's vertices; version 2 stores chains (shared borders once).
 REGION_KEYS_V1 = ("label", "grid", "polys", "verts", "xy_shift", "xy", "ctrl")
+#: Version 4 adds ``alpha`` (a bit per region, least significant bit first) when flag 2 is set.
 REGION_KEYS = ("label", "grid", "polys", "chains", "chain_verts", "refs", "ref", "xy_shift", "xy", "ctrl", "blurs",
                "blur")
 FEATURE_KEYS = ("st_bits", "count", "st", "lab_lag", "lab", "kind", "pair")
@@ -139,7 +140,10 @@ def pack_regions(q: Quantized) -> bytes:
     chain_xy = np.concatenate(chain_list) if chain_list else np.zeros((0, 2), np.int32)
     shift = xy_shift(chain_xy)
     xy = chain_xy.astype(np.int64) >> shift
+    alpha = {} if q.transparent is None or not q.transparent.any() else {
+        "alpha": np.packbits(q.transparent, bitorder="little").tobytes()}
     return _packb({
+        **alpha,
         "label": list(q.labels),
         "grid": grid[:, 0].tobytes() + grid[:, 1].tobytes(),
         "polys": to_planes(q.poly_counts, 4),
@@ -281,8 +285,16 @@ def unpack_params(raw: bytes) -> dict:
 def unpack_regions(raw: bytes, h: layout.Header) -> dict:
     """Region arrays from the regions section, sized and summed against ``h``."""
     name = "regions"
-    obj = _expect_map(unpack(raw, name), REGION_KEYS if h.version >= 2 else REGION_KEYS_V1, name)
+    keys = (REGION_KEYS if h.version >= 2 else REGION_KEYS_V1) + (("alpha",) if h.has_alpha else ())
+    obj = _expect_map(unpack(raw, name), keys, name)
     r = h.regions
+    transparent = None
+    if h.has_alpha:
+        bits = np.frombuffer(_expect_bin(obj, "alpha", (r + 7) // 8, name), np.uint8)
+        transparent = np.unpackbits(bits, bitorder="little").astype(bool)
+        if transparent[r:].any() or not transparent.any():
+            raise TpsvFormatError(f"section {name}: alpha must mark at least one of the {r} regions and nothing past them")
+        transparent = transparent[:r]
     labels = obj["label"]
     if not isinstance(labels, list) or len(labels) != r:
         raise TpsvFormatError(f"section {name}: label is not an array of {r} ints")
@@ -344,7 +356,7 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
                                 np.frombuffer(buf[8 * n:], np.uint8)]).astype(np.int64).reshape(-1, 3)
     return dict(
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
-        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid), blur=blur,
+        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid), blur=blur, transparent=transparent,
     )
 
 

@@ -13,7 +13,7 @@ from .. import tps
 from ..errors import TpsvError
 from ..geometry.regions import to_pixel_space
 from ..model import Features, Model
-from ..render.pixelmap import region_index
+from ..rendering.pixelmap import region_index
 
 
 def copy_model(model: Model) -> Model:
@@ -46,7 +46,7 @@ def region_at(model: Model, xy) -> int:
     """The region the renderer shows at pixel-space point ``xy`` (at scale 1).
 
     The pixel containing the point gets its region from the vector outlines
-    (``tpsv.render.pixelmap.region_index``, draw order honoured), so this is the region
+    (``tpsv.rendering.pixelmap.region_index``, draw order honoured), so this is the region
     a user sees under the cursor.
     """
     p = check_point(model, xy)

@@ -64,7 +64,7 @@ covered pixel, and that region's TPS at the clamped ``(S, T)``.
 
 Where a moved outline overlaps another region, the region drawn first wins:
 every region a call deforms is put in front (``Params.extra["front"]``, see
-``tpsv.render.pixelmap.draw_order``), the most recently deformed first, unless
+``tpsv.rendering.pixelmap.draw_order``), the most recently deformed first, unless
 ``keep_order=True``. Region indices never change, so later edits of the same
 file can name the same regions.
 
@@ -94,7 +94,7 @@ from ..geometry import patch as hpatch
 from .common import check_region, copy_model
 from ..errors import TpsvError
 from ..model import Model, Patch
-from ..render.pixelmap import FRONT_KEY, draw_order
+from ..rendering.pixelmap import FRONT_KEY, draw_order
 
 #: Outline edges are split to at most this length (px) before a non-affine map.
 SUBDIVIDE_PX = 1.0

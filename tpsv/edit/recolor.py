@@ -2,7 +2,7 @@
 
 An edit is a *selection* of colour features and an *operation* on their Lab
 colours; the TPS kernels are then rebuilt from the new colours (only the
-kernels holding a changed feature: ``tpsv.render.live``). Geometry never changes.
+kernels holding a changed feature: ``tpsv.rendering.live``). Geometry never changes.
 
 Selection (:func:`select`)
 --------------------------

@@ -56,7 +56,7 @@ from .common import concat_features, copy_model, feature_xy, sort_by_region
 from ..errors import TpsvError
 from ..image import to_uint8
 from ..model import CURVILINEAR, GRADATION, Features, Model
-from ..render.raster import render
+from ..rendering.raster import render
 
 #: Cell side (px) of the gradation thinning at level 1; doubles with each level.
 BASE_CELL_PX = 3.0

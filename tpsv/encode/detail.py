@@ -14,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..codec import detail as detail_codec
+from ..geometry.bands import row_bands
 from ..geometry.patch import affine_frame
-from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_YCC, DETAIL_ZERO, Detail, Model
+from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_OFF, DETAIL_YCC, DETAIL_ZERO, Detail, Model
 
 
 def rest_frames(model: Model) -> np.ndarray:
@@ -39,15 +40,26 @@ def rest_frames(model: Model) -> np.ndarray:
 
 
 def residual_texels(rgb: np.ndarray, rendered: np.ndarray) -> np.ndarray:
-    """The residual ``rgb - rendered`` (sRGB, both (H, W, 3) in [0, 1]) as 10-bit (Y, Cb, Cr) texels (uint16)."""
-    res = (np.asarray(rgb, np.float64) - np.asarray(rendered, np.float64)) @ DETAIL_YCC.T
-    return np.clip(np.rint(DETAIL_ZERO + DETAIL_GAIN * res), 0, 1023).astype(np.uint16)
+    """The residual ``rgb - rendered`` (sRGB, both (H, W, 3) in [0, 1]) as 10-bit (Y, Cb, Cr) texels (uint16).
+
+    Computed band by band of rows (float64 temporaries of a band only).
+    """
+    h, w = rgb.shape[:2]
+    out = np.empty((h, w, 3), np.uint16)
+    for a, b in row_bands(h, w):
+        res = (np.asarray(rgb[a:b], np.float64) - np.asarray(rendered[a:b], np.float64)) @ DETAIL_YCC.T
+        out[a:b] = np.clip(np.rint(DETAIL_ZERO + DETAIL_GAIN * res), 0, 1023)
+    return out
 
 
 def texel_rgb(texels: np.ndarray) -> np.ndarray:
-    """The sRGB residual (h, w, 3) float32 of (Y, Cb, Cr) texels."""
-    ycc = (texels.astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN
-    return (ycc @ np.linalg.inv(DETAIL_YCC).T).astype(np.float32)
+    """The sRGB residual (h, w, 3) float32 of (Y, Cb, Cr) texels (band by band of rows)."""
+    h, w = texels.shape[:2]
+    to_rgb = np.linalg.inv(DETAIL_YCC).T
+    out = np.empty((h, w, 3), np.float32)
+    for a, b in row_bands(h, w):
+        out[a:b] = ((texels[a:b].astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ to_rgb
+    return out
 
 
 def code_texels(texels: np.ndarray, quality: int) -> tuple[bytes, np.ndarray]:
@@ -58,16 +70,22 @@ def code_texels(texels: np.ndarray, quality: int) -> tuple[bytes, np.ndarray]:
 
 
 def make_detail(model: Model, texels: np.ndarray, quality: int, coded: tuple | None = None) -> Detail:
-    """The detail layer of ``model`` with residual ``texels`` at ``quality`` (every region in full mode).
+    """The detail layer of ``model`` with residual ``texels`` at ``quality`` (every region in full mode,
+    transparent regions off).
 
     ``coded``: ``code_texels(texels, quality)`` when already computed.
     """
     payload, decoded = coded if coded is not None else code_texels(texels, quality)
     R = len(model.regions)
     return Detail(payload=payload, texels=decoded, frame=rest_frames(model),
-                  mode=np.full(R, DETAIL_FULL, np.uint8), quality=int(quality))
+                  mode=np.array([DETAIL_OFF if r.transparent else DETAIL_FULL for r in model.regions], np.uint8).reshape(R),
+                  quality=int(quality))
 
 
 def with_texels(rendered: np.ndarray, texels: np.ndarray) -> np.ndarray:
     """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual."""
-    return np.clip(rendered + texel_rgb(texels), 0.0, 1.0)
+    h, w = rendered.shape[:2]
+    out = np.empty(np.broadcast_shapes(rendered.shape, texels.shape), np.result_type(rendered, np.float32))
+    for a, b in row_bands(h, w):
+        np.clip(rendered[a:b] + texel_rgb(texels[a:b]), 0.0, 1.0, out=out[a:b])
+    return out

@@ -90,7 +90,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..color import srgb_to_lab
+from ..geometry.bands import lab_image, row_bands
 from ..geometry.patch import patch_pixel_scale
 from ..geometry.regions import region_borders, to_patch_space, to_pixel_space
 from ..model import CURVILINEAR, GRADATION, Features
@@ -206,7 +206,10 @@ def as_rgb(rgb: np.ndarray) -> np.ndarray:
     rgb = rgb[..., :3]
     if rgb.dtype == np.uint8:
         return rgb.astype(np.float32) / 255.0
-    return np.clip(rgb.astype(np.float32), 0.0, 1.0)
+    rgb = rgb.astype(np.float32, copy=False)
+    if rgb.size and (rgb.min() < 0.0 or rgb.max() > 1.0):
+        return np.clip(rgb, 0.0, 1.0)
+    return rgb  # already in range: no copy (a photo is held once)
 
 
 def as_index(index: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
@@ -233,18 +236,25 @@ def as_index(index: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"index map shape {index.shape} does not match image {shape}")
     if index.size and index.min() < 0:
         raise ValueError("index map has negative values")
-    return index.astype(np.int32)
+    return index.astype(np.int32, copy=False)
 
 
-def lab_gradient(lab255: np.ndarray, blur_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def lab_gradient(lab255: np.ndarray, blur_sigma: float = 0.0,
+                 scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sobel gradient of the strongest channel of a multi-channel image.
+
+    Without a pre-blur it is computed band by band of rows (each band with a
+    row of its neighbours on either side, so the values are the whole
+    image's): the temporaries stay a few megabytes.
 
     Parameters
     ----------
     lab255 : ndarray (H, W, C) float32
-        Image (here ``2.55 * Lab``).
+        Image (here ``2.55 * Lab``, or Lab with ``scale`` 2.55).
     blur_sigma : float
         Gaussian pre-blur (0: none, as ``cv2.Canny``).
+    scale : float
+        Factor (float32) applied to the image first.
 
     Returns
     -------
@@ -252,20 +262,32 @@ def lab_gradient(lab255: np.ndarray, blur_sigma: float = 0.0) -> tuple[np.ndarra
         Derivatives (3x3 Sobel, unnormalised) of the channel with the largest
         magnitude at each pixel, and that L2 magnitude.
     """
-    img = np.ascontiguousarray(lab255, np.float32)
-    if blur_sigma > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
-    if img.ndim == 2:
-        img = img[..., None]
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
-    if gx.ndim == 2:
-        gx, gy = gx[..., None], gy[..., None]
-    m2 = gx * gx + gy * gy
-    ch = np.argmax(m2, axis=-1)[..., None]
-    dx = np.take_along_axis(gx, ch, -1)[..., 0]
-    dy = np.take_along_axis(gy, ch, -1)[..., 0]
-    mag = np.sqrt(np.take_along_axis(m2, ch, -1)[..., 0])
+    h, w = lab255.shape[:2]
+
+    def part(img):
+        img = np.ascontiguousarray(img, np.float32)
+        if scale != 1.0:
+            img = img * np.float32(scale)
+        if blur_sigma > 0:
+            img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
+        if img.ndim == 2:
+            img = img[..., None]
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
+        if gx.ndim == 2:
+            gx, gy = gx[..., None], gy[..., None]
+        m2 = gx * gx + gy * gy
+        ch = np.argmax(m2, axis=-1)[..., None]
+        return (np.take_along_axis(gx, ch, -1)[..., 0], np.take_along_axis(gy, ch, -1)[..., 0],
+                np.sqrt(np.take_along_axis(m2, ch, -1)[..., 0]))
+
+    if blur_sigma > 0:  # the blur's reach is wider than a row: the whole image at once
+        return part(lab255)
+    dx, dy, mag = (np.empty((h, w), np.float32) for _ in range(3))
+    for a, b in row_bands(h, w):
+        lo, hi = max(a - 1, 0), min(b + 1, h)  # one row of context: the 3x3 Sobel sees what it sees whole
+        for out, got in zip((dx, dy, mag), part(lab255[lo:hi])):
+            out[a:b] = got[a - lo:a - lo + b - a]
     return dx, dy, mag
 
 
@@ -365,8 +387,8 @@ class _Hierarchy:
 class FeatureExtractor:
     """Threshold-independent precomputation; ``extract`` for any thresholds.
 
-    Lab conversion, the gradient (and its int16 copy for ``cv2.Canny``) are
-    computed here; the superpixel hierarchy and the per-region pixel lists on
+    Lab conversion is computed here; the gradient (and its int16 copy for
+    ``cv2.Canny``), the superpixel hierarchy and the per-region pixel lists on
     first use. Each ``extract`` call then costs a Canny pass, a cut through the
     hierarchy and a few vectorised passes over the boundary pixels.
 
@@ -405,12 +427,9 @@ class FeatureExtractor:
         self.step = max(1, int(step))
         self.thin = max(1, int(thin))
         self.min_cell = max(2, int(min_cell))
-        self.lab = srgb_to_lab(self.rgb)
-        self.lab255 = self.lab * np.float32(LAB_SCALE)
-        self.dx, self.dy, self.mag = lab_gradient(self.lab255, blur_sigma)
-        lim = 32767.0
-        self._dx16 = np.clip(np.rint(self.dx * _CANNY_INT), -lim, lim).astype(np.int16)
-        self._dy16 = np.clip(np.rint(self.dy * _CANNY_INT), -lim, lim).astype(np.int16)
+        self.blur_sigma = float(blur_sigma)
+        self.lab = lab_image(self.rgb)
+        self._grad: tuple | None = None
         self._hier: _Hierarchy | None = None
         self._order: np.ndarray | None = None
         self._bounds: np.ndarray | None = None
@@ -420,13 +439,44 @@ class FeatureExtractor:
         rb[:, 0] = rb[:, -1] = True
         self._fixed_boundary = rb
 
+    def _gradient(self) -> tuple:
+        """``(dx, dy, mag, dx16, dy16)``, made on first use (not before the curvilinear features need it)."""
+        if self._grad is None:
+            dx, dy, mag = lab_gradient(self.lab, self.blur_sigma, scale=LAB_SCALE)
+            lim = 32767.0
+            dx16 = np.clip(np.rint(dx * _CANNY_INT), -lim, lim).astype(np.int16)
+            dy16 = np.clip(np.rint(dy * _CANNY_INT), -lim, lim).astype(np.int16)
+            self._grad = (dx, dy, mag, dx16, dy16)
+        return self._grad
+
+    @property
+    def dx(self) -> np.ndarray:
+        """Sobel x derivative (H, W) float32 of the strongest channel of ``2.55 * Lab`` (:func:`lab_gradient`)."""
+        return self._gradient()[0]
+
+    @property
+    def dy(self) -> np.ndarray:
+        """Sobel y derivative (H, W) float32, as :attr:`dx`."""
+        return self._gradient()[1]
+
+    @property
+    def mag(self) -> np.ndarray:
+        """Gradient magnitude (H, W) float32, as :attr:`dx`."""
+        return self._gradient()[2]
+
+    @property
+    def lab255(self) -> np.ndarray:
+        """``2.55 * Lab`` (H, W, 3) float32: the gradient's and the variance's units (made when asked)."""
+        return self.lab * np.float32(LAB_SCALE)
+
     # ------------------------------------------------------------- curvilinear
 
     def edges(self, t_canny: float) -> np.ndarray:
         """Canny edge mask (bool HxW): high threshold ``t_canny``, low ``t_canny / 2``."""
         hi = float(max(t_canny, 0.0)) * _CANNY_INT
         lo = 0.5 * hi
-        e = cv2.Canny(self._dx16, self._dy16, lo, hi, L2gradient=True)
+        dx16, dy16 = self._gradient()[3:]
+        e = cv2.Canny(dx16, dy16, lo, hi, L2gradient=True)
         return e > 0
 
     def curvilinear(self, t_canny: float, step: int | None = None) -> FeatureSet:
@@ -774,12 +824,21 @@ class LatticeGradation:
         self.n_regions = R
         self.edge_px = float(edge_px)
         self.scale = np.array([patch_pixel_scale(p) for p in self.patches], np.float64).reshape(R, 2)
+        # Per pixel only what the lattices are made of, in the inputs' own precision (float32 from
+        # the renderer's map and the Lab image; products are taken in float64, as before): the
+        # cells of a spacing are recomputed when asked (:meth:`_cells`), not held.
         flat = np.asarray(index).ravel()
-        self.pix = np.nonzero(flat >= 0)[0]
-        self.reg = flat[self.pix].astype(np.int64)
-        S = np.asarray(st, np.float64).reshape(-1, 2)[self.pix]
-        self.S = np.clip(np.nan_to_num(S), 0.0, 1.0)
-        self.col = np.asarray(lab, np.float64).reshape(-1, 3)[self.pix]
+        keep = flat >= 0
+        self.pix = None if keep.all() else np.nonzero(keep)[0]  # None: every pixel
+        self.reg = (flat if self.pix is None else flat[self.pix]).astype(np.int32, copy=False)
+        S = np.asarray(st)
+        S = S.reshape(-1, 2) if np.issubdtype(S.dtype, np.floating) else S.astype(np.float64).reshape(-1, 2)
+        S = S if self.pix is None else S[self.pix]
+        # the renderer's map is finite and in [0, 1] inside the regions: then no copy
+        inside = S.size == 0 or (np.isfinite(S).all() and S.min() >= 0.0 and S.max() <= 1.0)
+        self.S = S if inside else np.clip(np.nan_to_num(S), 0.0, 1.0)
+        col = np.asarray(lab).reshape(-1, 3)
+        self.col = col if self.pix is None else col[self.pix]
         self.spacings = tuple(sorted(float(d) for d in spacings))
         self.lattices = [self._lattice(d) for d in self.spacings]
         self.region_rms = np.stack([lat["region_rms"] for lat in self.lattices])  # (n_d, R)
@@ -787,23 +846,40 @@ class LatticeGradation:
     def _grid(self, d: float) -> np.ndarray:
         return np.maximum(1, np.rint(self.scale / d)).astype(np.int64)  # (R, 2) cells along S, T
 
+    def _cells(self, lat: dict, rows: np.ndarray | None = None) -> np.ndarray:
+        """Cell of every pixel (or of the pixel ``rows``) in lattice ``lat``: int64, a chunk at a time."""
+        n, off = lat["n"], lat["off"]
+        count = self.reg.size if rows is None else rows.size
+        out = np.empty(count, np.int64)
+        for a in range(0, count, 1 << 16):
+            at = slice(a, min(a + (1 << 16), count))
+            sel = at if rows is None else rows[at]
+            reg = self.reg[sel]
+            nr = n[reg]
+            ij = np.minimum((self.S[sel] * nr).astype(np.int64), nr - 1)
+            out[at] = off[reg] + ij[:, 1] * nr[:, 0] + ij[:, 0]
+        return out
+
     def _lattice(self, d: float) -> dict:
         R = self.n_regions
         n = self._grid(d)
         off = np.concatenate([[0], np.cumsum(n[:, 0] * n[:, 1])])
-        nr = n[self.reg]
-        ij = np.minimum((self.S * nr).astype(np.int64), nr - 1)
-        cell = off[self.reg] + ij[:, 1] * nr[:, 0] + ij[:, 0]
-        stats = cell_stats(cell, int(off[-1]), self.col, LAB_SCALE**2)
-        used = stats["count"] > 0
-        r_of = np.repeat(np.arange(R), n[:, 0] * n[:, 1])
-        k = np.arange(off[-1]) - off[r_of]
-        ix, iy = k % n[r_of, 0], k // n[r_of, 0]
-        st = np.column_stack([(ix + 0.5) / n[r_of, 0], (iy + 0.5) / n[r_of, 1]])
+        stats = cell_stats(self._cells(dict(n=n, off=off)), int(off[-1]), self.col, LAB_SCALE**2)
+        r_of = np.repeat(np.arange(R, dtype=np.int32), n[:, 0] * n[:, 1])
         w = stats["count"]
         region_rms = np.bincount(r_of, stats["rms"] * w, R) / np.maximum(np.bincount(r_of, w, R), 1.0)
-        return dict(d=d, n=n, off=off, cell=cell, used=used, region=r_of, st=st, lab=stats["lab"],
-                    rms=stats["rms"], count=stats["count"], region_rms=region_rms)
+        # per cell only what the features take (their colours are float32 in the end); a
+        # region's lattice spans its patch's rectangle, so cells are many more than pixels / d^2
+        return dict(d=d, n=n, off=off, used=w > 0, region=r_of, lab=stats["lab"].astype(np.float32),
+                    region_rms=region_rms)
+
+    @staticmethod
+    def _centres(lat: dict, cells: np.ndarray) -> np.ndarray:
+        """``(S, T)`` (k, 2) float64 of the centres of lattice ``lat``'s ``cells``."""
+        r = lat["region"][cells]
+        n = lat["n"][r]
+        k = cells - lat["off"][r]
+        return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
     def region_spacing(self, t_super: float) -> np.ndarray:
         """Index into ``spacings`` per region for ``t_super``."""
@@ -814,6 +890,9 @@ class LatticeGradation:
     def _pixel_rows(self, pixels: np.ndarray | None) -> np.ndarray | None:
         if pixels is None or len(pixels) == 0:
             return None
+        if self.pix is None:
+            pixels = np.asarray(pixels, np.int64)
+            return pixels[(pixels >= 0) & (pixels < self.reg.size)]
         pos = np.minimum(np.searchsorted(self.pix, pixels), self.pix.size - 1)
         return pos[self.pix[pos] == pixels]
 
@@ -838,18 +917,18 @@ class LatticeGradation:
             split = np.zeros(mine.size, bool)
             k = int(np.ceil(lat["d"] / self.edge_px - 1e-9))
             if rows is not None and k > 1:
-                has = np.bincount(lat["cell"][rows], minlength=mine.size) > 0
+                has = np.bincount(self._cells(lat, rows), minlength=mine.size) > 0
                 split = mine & has
             keep = np.nonzero(mine & ~split)[0]
-            parts.append((lat["st"][keep], lat["region"][keep], lat["lab"][keep]))
+            parts.append((self._centres(lat, keep), lat["region"][keep], lat["lab"][keep]))
             if split.any():
                 parts.append(self._subdivide(lat, np.nonzero(split)[0], k))
         return _join(parts)
 
     def _subdivide(self, lat, cells, k):
         """Sub-cells (k x k) of the given cells of a lattice, from their pixels."""
-        sel = np.nonzero(np.isin(lat["cell"], cells))[0]
-        reg = self.reg[sel]
+        sel = np.nonzero(np.isin(self._cells(lat), cells))[0]
+        reg = self.reg[sel].astype(np.int64)
         n = lat["n"][reg] * k
         ij = np.minimum((self.S[sel] * n).astype(np.int64), n - 1)
         key = (reg * (int(n[:, 1].max()) + 1) + ij[:, 1]) * (int(n[:, 0].max()) + 1) + ij[:, 0]
@@ -870,8 +949,8 @@ def cell_stats(cell: np.ndarray, n: int, col: np.ndarray, var_scale: float = 1.0
         Cell id of every pixel.
     n : int
         Number of cells.
-    col : ndarray (P, 3) float64
-        Colour of every pixel.
+    col : ndarray (P, 3) float
+        Colour of every pixel (float32 is taken in float64, one channel at a time).
     var_scale : float
         Factor of the variance (``LAB_SCALE ** 2`` turns Lab colours into the
         ``2.55 * Lab`` units of ``T_super``).
@@ -887,10 +966,10 @@ def cell_stats(cell: np.ndarray, n: int, col: np.ndarray, var_scale: float = 1.0
     lab = np.zeros((n, 3))
     var = np.zeros(n)
     for c in range(3):
-        v = col[:, c]
+        v = col[:, c].astype(np.float64)
         m = np.bincount(cell, v, n) / safe
         lab[:, c] = m
-        var += (np.bincount(cell, v * v, n) / safe - m * m) * var_scale
+        var += (np.bincount(cell, np.square(v, out=v), n) / safe - m * m) * var_scale
     return dict(count=cnt, lab=lab, rms=np.sqrt(np.maximum(var, 0.0)))
 
 

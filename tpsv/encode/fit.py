@@ -61,7 +61,7 @@ import numpy as np
 
 from .. import tps
 from ..color import lab_to_srgb_jacobian, srgb_to_lab
-from ..render.pixelmap import pixel_map
+from ..rendering.pixelmap import pixel_map
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -85,7 +85,7 @@ class FitReport:
 
 
 def pixel_maps(model, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
-    """The pixel maps at scale 1, as rendered (:func:`tpsv.render.pixelmap.pixel_map`, draw order included).
+    """The pixel maps at scale 1, as rendered (:func:`tpsv.rendering.pixelmap.pixel_map`, draw order included).
 
     Parameters
     ----------
@@ -135,7 +135,7 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
 
     ``skip``: flat pixel indices left out of the fit; the pixels a border
     crosses, whose colour the renderer mixes from both sides
-    (``tpsv.render.borders``): fitted to them, a region's TPS would reach
+    (``tpsv.rendering.borders``): fitted to them, a region's TPS would reach
     for its neighbour's colour and bleed it into its own fill.
     """
     rgb = np.asarray(rgb)
@@ -154,7 +154,7 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
     J = lab_to_srgb_jacobian(lab)
     W = np.einsum("nij,nik->njk", J, J)
     return FitTarget(
-        rows=rows, region=reg.astype(np.int32), st=np.asarray(st, np.float64).reshape(-1, 2)[rows],
+        rows=rows, region=reg.astype(np.int32), st=np.asarray(st).reshape(-1, 2)[rows].astype(np.float64),
         lab=lab, W=W, sub=int(sub),
     )
 

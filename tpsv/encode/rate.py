@@ -24,16 +24,19 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
 from .. import codec, metrics
 from ..errors import TpsvError
-from ..model import Params
-from ..render.raster import render
+from ..model import DETAIL_ZERO, Params
+from ..rendering.raster import render
 from . import detail as detail_layer
 from .features import FeatureExtractor
-from .vectorize import Candidates, Evaluation, VectorizeResult, image_geometry, make_model, scheme_params
+from .memory import give_back
+from .vectorize import (Candidates, Evaluation, VectorizeResult, alpha_geometry, fit_model, make_model,
+                        scheme_params)
 
 #: The default quality: at least 32 dB on every bundled sample (README, "Quality").
 DEFAULT_QUALITY = 75
@@ -87,8 +90,9 @@ def check_quality(quality) -> int:
 class Trials:
     """Encodings at several qualities of one image, each made once (the search reuses them)."""
 
-    def __init__(self, rgb, geometry, params: Params, detail: bool, device: str):
+    def __init__(self, rgb, geometry, params: Params, detail: bool, device: str, tried=None):
         self.rgb = rgb
+        self.tried = tried or (lambda n: None)  # called with the number of encodings made so far
         self.detail = detail
         self.device = device
         self.geometry = geometry
@@ -110,14 +114,24 @@ class Trials:
             h, w = self.rgb.shape[:2]
             p = replace(self.params, t_canny=BASE_T_CANNY, t_super=BASE_T_SUPER, l_step=BASE_STEPS[0],
                         ab_step=BASE_STEPS[1])
-            extractor = FeatureExtractor(self.rgb, self.geometry.index)
-            model = make_model(self.rgb, self.geometry, extractor, p, fit=True, fit_sub=base_fit_sub(w, h),
-                               fit_iterations=BASE_FIT_ITERATIONS)
+            # per-pixel data is dropped as soon as its stage is done: the peak memory is the
+            # largest stage's, not the sum of them (issue 12)
+            model = make_model(self.rgb, self.geometry, FeatureExtractor(self.rgb, self.geometry.index), p,
+                               fit=False)
+            self.geometry.forget("lattice")
+            give_back()
+            model = fit_model(self.rgb, self.geometry, model, base_fit_sub(w, h), BASE_FIT_ITERATIONS)
+            self.geometry.forget("lattice", "fit", "borders", "st")  # the render makes its own maps
+            give_back()
             data = codec.encode(model)
             decoded = codec.decode(data)
             shown = render(decoded, device=self.device)
             ev = Evaluation(data, decoded, metrics.mse(self.rgb, shown))
-            self.base = (ev, shown, detail_layer.residual_texels(self.rgb, shown))
+            texels = detail_layer.residual_texels(self.rgb, shown)
+            clear = np.array([r.transparent for r in decoded.regions] + [False])
+            texels[clear[self.geometry.index]] = DETAIL_ZERO  # nobody sees a transparent region's texture
+            self.base = (ev, shown, texels)
+            give_back()  # before the AVIF encoder takes its own
         return self.base
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:
@@ -143,6 +157,7 @@ class Trials:
         # quantize is decode(encode()) without decoding the texture's AVIF again
         out = (codec.encode(model), codec.quantize(model), err)
         self.done[quality] = out
+        self.tried(len(self.done))
         return out
 
 
@@ -163,6 +178,8 @@ def encode_quality(
     params: Params | None = None,
     device: str = "cpu",
     outlines: str = "fitted",
+    alpha: np.ndarray | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> VectorizeResult:
     """Vectorise at a quality, or at the lowest quality that reaches a PSNR, or the highest within a size.
 
@@ -189,6 +206,12 @@ def encode_quality(
         Warp device of the renders.
     outlines : {'fitted', 'traced'}
         As :func:`tpsv.encode.vectorize.vectorize`.
+    alpha : ndarray (H, W) float in [0, 1], optional
+        Opacity of an RGBA input, as :func:`tpsv.encode.vectorize.vectorize`
+        (PSNR and the targets are then of the colours :func:`tpsv.encode.alpha.straight` encodes).
+    progress : callable(done, total), optional
+        Called after the geometry and after each encoding tried (a search for
+        a target tries up to :data:`MAX_TRIALS`).
 
     Returns
     -------
@@ -204,8 +227,12 @@ def encode_quality(
         raise TpsvError(f"maximum bytes {max_bytes} is not positive")
     if quality is not None:
         quality = check_quality(quality)
-    geometry = image_geometry(rgb, labels, seed, outlines)
-    trials = Trials(rgb, geometry, params or scheme_params(), detail, device)
+    total = 1 + (1 if quality is not None or (target_psnr is None and max_bytes is None) else MAX_TRIALS)
+    report = progress or (lambda done, total: None)
+    rgb, geometry = alpha_geometry(rgb, alpha, labels, seed, outlines)
+    report(1, total)
+    trials = Trials(rgb, geometry, params or scheme_params(), detail, device,
+                    tried=lambda n: report(min(1 + n, total - 1), total))
     reached = True
     if target_psnr is not None:
         q = _lowest(lambda k: metrics.psnr_of_mse(trials(k)[2]) >= target_psnr)
@@ -219,9 +246,14 @@ def encode_quality(
     else:
         q = DEFAULT_QUALITY if quality is None else quality
     data, model, mse = trials(q)
+    report(total, total)
     return VectorizeResult(model=model, data=data, psnr=metrics.psnr_of_mse(mse), mse=mse, seconds=time.perf_counter() - t0,
                            history=[(k, len(v[0]), metrics.psnr_of_mse(v[2])) for k, v in sorted(trials.done.items())],
                            quality=q, reached=reached)
+
+
+#: Most encodings a search for a target PSNR or size tries (bisection of 1..100, after the ends).
+MAX_TRIALS = 9
 
 
 def _lowest(ok) -> int | None:

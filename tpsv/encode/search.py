@@ -60,7 +60,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 
 from .. import metrics
-from ..color import srgb_to_lab
+from ..geometry.bands import lab_image
 from ..geometry.regions import region_borders
 from .features import LAB_SCALE, as_index, as_rgb, lab_gradient
 
@@ -76,8 +76,7 @@ FLAT = 0.5
 
 def gradient_magnitude(rgb: np.ndarray, blur_sigma: float = 0.0) -> np.ndarray:
     """Gradient magnitude (HxW float32) as thresholded by the Canny detector."""
-    lab255 = srgb_to_lab(as_rgb(rgb)) * np.float32(LAB_SCALE)
-    return lab_gradient(lab255, blur_sigma)[2]
+    return lab_gradient(lab_image(as_rgb(rgb)), blur_sigma, scale=LAB_SCALE)[2]
 
 
 def gradient_stats(

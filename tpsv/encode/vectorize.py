@@ -92,12 +92,13 @@ from ..geometry import segment
 from ..geometry.edgewidth import edge_widths
 from ..geometry.regions import build_regions
 from ..model import Features, Model, Params, Region
-from ..render.pixelmap import PixelMap
-from ..render.borders import Borders
-from ..render.raster import render, shade
+from ..rendering.pixelmap import PixelMap
+from ..rendering.raster import render, shade
 from . import search as selection
+from .alpha import flatten, straight, transparent_mask, with_transparent_label
 from .features import DEDUP_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
 from .fit import fit_colors, fit_target
+from .memory import give_back
 
 #: Feature schemes (see the module doc).
 SCHEMES = ("tpsv", "paper")
@@ -204,13 +205,15 @@ class Geometry:
                             lambda: fit_target(rgb, self.index, self.pixel_st(), sub, skip=self.mixed_pixels()))
 
     def border_mix(self):
-        """The anti-aliased border pixels at scale 1, as the renderer finds them (:mod:`tpsv.render.borders`; cached)."""
+        """The anti-aliased border pixels at scale 1, as the renderer finds them (:mod:`tpsv.gpu.coverage`; cached)."""
         if "borders" not in self._cache:
             from types import SimpleNamespace
 
+            from ..gpu.coverage import DeviceBorders
+
             h, w = self.index.shape
-            shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur)  # Borders reads only these
-            self._cache["borders"] = Borders(shape, w, h).mix(self.index)
+            shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur)  # all it reads
+            self._cache["borders"] = DeviceBorders(shape, w, h).mix(self.index)
         return self._cache["borders"]
 
     def mixed_pixels(self) -> np.ndarray:
@@ -224,6 +227,20 @@ class Geometry:
             "lattice", lab, (),
             lambda: LatticeGradation(lab, self.index, self.pixel_st(), [r.patch for r in self.regions]),
         )
+
+    def forget(self, *kinds: str) -> None:
+        """Drop cached per-pixel data nobody will ask for again (each is made again if asked).
+
+        Parameters
+        ----------
+        *kinds : str
+            ``"lattice"`` (:meth:`lattice`, and the Lab image it was keyed
+            on), ``"fit"`` (:meth:`fit_target`), ``"borders"``
+            (:meth:`border_mix`), ``"st"`` (:meth:`pixel_st`).
+        """
+        if "st" in kinds:
+            self.st = None
+        self._cache = {k: v for k, v in self._cache.items() if (k if isinstance(k, str) else k[0]) not in kinds}
 
 
 @dataclass
@@ -305,7 +322,8 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     return Geometry(regions=regions, index=index, blur=blur)
 
 
-def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted") -> Geometry:
+def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted",
+                   transparent: np.ndarray | None = None) -> Geometry:
     """Stages 1-2 for a photo: its label map (segmented when absent), then its regions.
 
     Parameters
@@ -317,6 +335,10 @@ def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, ou
     outlines : {'fitted', 'traced'}
         Outlines fitted to the photo's edges (with edge widths), or along the
         label map's pixel edges.
+    transparent : ndarray (H, W) bool, optional
+        The transparent part of an RGBA input (:mod:`tpsv.encode.alpha`;
+        ``rgb`` is then the flattened picture): it gets a label of its own,
+        and its regions are marked transparent.
 
     Returns
     -------
@@ -324,7 +346,34 @@ def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, ou
     """
     if outlines not in ("fitted", "traced"):
         raise TpsvError(f"outlines {outlines!r} is not fitted or traced")
-    return build_geometry(label_map(rgb, labels, seed), rgb if outlines == "fitted" else None)
+    labels = label_map(rgb, labels, seed)
+    give_back()  # the segmentation's temporaries (tpsv.encode.memory)
+    if transparent is not None:
+        labels, clear = with_transparent_label(labels, transparent)
+    geometry = build_geometry(labels, rgb if outlines == "fitted" else None)
+    give_back()
+    if transparent is not None:
+        for region in geometry.regions:
+            region.transparent = region.label == clear
+    return geometry
+
+
+def alpha_geometry(rgb: np.ndarray, alpha: np.ndarray | None, labels: np.ndarray | None, seed: int = 0,
+                   outlines: str = "fitted") -> tuple[np.ndarray, Geometry]:
+    """:func:`image_geometry` of a photo that may have transparency; returns ``(colours to encode, geometry)``.
+
+    With a transparent part (:mod:`tpsv.encode.alpha`), the geometry comes
+    from the picture flattened onto a contrasting backdrop and the colours to
+    encode are the straight ones; the label map, when segmented here, from
+    the colours (the backdrop's ramp would make slivers along the edge).
+    """
+    transparent = transparent_mask(alpha)
+    if transparent is None:
+        return rgb, image_geometry(rgb, labels, seed, outlines)
+    shape_rgb, rgb = flatten(rgb, alpha, transparent), straight(rgb, alpha, transparent)
+    if labels is None:
+        labels = label_map(rgb, None, seed)
+    return rgb, image_geometry(shape_rgb, labels, seed, outlines, transparent)
 
 
 def start_thresholds(
@@ -405,9 +454,34 @@ def make_model(
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
     model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params, blur=geometry.blur)
-    if fit and scheme_of(params) != "paper" and len(feats):
-        model = codec.quantize(model)
-        model, _ = fit_colors(model, target=geometry.fit_target(rgb, fit_sub), iterations=fit_iterations)
+    return fit_model(rgb, geometry, model, fit_sub, fit_iterations) if fit else model
+
+
+def fit_model(rgb: np.ndarray, geometry: Geometry, model: Model, fit_sub: int = 1, fit_iterations: int = 6) -> Model:
+    """The fit of :func:`make_model` (``fit=True``) on a model it made with ``fit=False``.
+
+    With the ``"tpsv"`` scheme the positions are quantised as stored and the
+    colours fitted to ``rgb`` (:mod:`tpsv.encode.fit`); a ``"paper"`` model,
+    or one without features, is returned as is.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    geometry : Geometry
+    model : Model
+    fit_sub, fit_iterations : int
+        Pixel lattice and iterations of the fit.
+
+    Returns
+    -------
+    Model
+    """
+    if scheme_of(model.params) == "paper" or not len(model.features):
+        return model
+    model = codec.quantize(model)
+    target = geometry.fit_target(rgb, fit_sub)
+    give_back()  # the target's temporaries: the fit's threads take memory of their own
+    model, _ = fit_colors(model, target=target, iterations=fit_iterations)
     return model
 
 
@@ -419,13 +493,14 @@ def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: floa
     pair, and the anchors regions still need.
     """
     w, h = extractor.w, extractor.h
+    lattice = geometry.lattice(extractor.lab)  # before the gradient of the curvilinear features is made
     cur = extractor.curvilinear(t_canny, step=CURVE_STEP)
     edge = None
     if len(cur):
         cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, w - 1)
         cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, h - 1)
         edge = np.unique(cy * w + cx)
-    grad = drop_near(geometry.lattice(extractor.lab).features(t_super, edge), cur, DEDUP_PX, (w, h))
+    grad = drop_near(lattice.features(t_super, edge), cur, DEDUP_PX, (w, h))
     both = FeatureSet.concat([cur, grad])
     return FeatureSet.concat([both, extractor.anchors(both)])
 
@@ -454,7 +529,7 @@ def evaluate(
         of the decoded model's regions (``Geometry.index``,
         ``Geometry.pixel_st()``, ``Geometry.border_mix()`` when quantisation
         leaves the regions unchanged), to save computing them; then only
-        render steps 3-5 run (:func:`tpsv.render.raster.shade`).
+        render steps 3-5 run (:func:`tpsv.rendering.raster.shade`).
 
     Returns
     -------
@@ -708,6 +783,7 @@ def vectorize(
     fit: bool = True,
     choose_steps: bool | None = None,
     outlines: str = "fitted",
+    alpha: np.ndarray | None = None,
 ) -> VectorizeResult:
     """Vectorise a photo: the stages of the module doc, in order.
 
@@ -748,13 +824,17 @@ def vectorize(
         (crisp at any scale, soft where the photo's edge is), or traced along
         the label map's pixel edges, sharp (staircase borders when magnified;
         README, "Edges", for the figures at equal bytes).
+    alpha : ndarray (H, W) float in [0, 1], optional
+        Opacity of an RGBA input: its transparent part becomes transparent
+        regions (:mod:`tpsv.encode.alpha`; PSNR is then of the colours
+        :func:`tpsv.encode.alpha.straight` encodes).
 
     Returns
     -------
     VectorizeResult
     """
     t0 = time.perf_counter()
-    geometry = image_geometry(rgb, labels, seed, outlines)
+    rgb, geometry = alpha_geometry(rgb, alpha, labels, seed, outlines)
     candidates = Candidates(rgb, geometry, params or scheme_params(), device=device, fit=fit)
     start = start_thresholds(rgb, geometry, t_canny, t_super)
     fixed = (t_canny is not None, t_super is not None)

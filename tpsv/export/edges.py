@@ -1,6 +1,6 @@
 """Region borders for the PDF: which region lies across each outline edge, and soft-edge ribbons.
 
-The renderer (``tpsv.render.borders``) mixes the region across into every
+The renderer (``tpsv.rendering.borders``) mixes the region across into every
 pixel a border crosses, with the box-filter coverage of a sharp step, or of
 the step blurred by the border's edge width ``sigma`` (``Model.blur``). In
 the PDF a sharp border is the anti-aliased edge of a clip path. A soft border

@@ -15,7 +15,7 @@ cell is split (in parameter space) until the bilinear colour matches the
 renderer's colour within a tolerance at a 5 x 5 grid of test points of each
 piece. Colours come from the library's own renderer (``tpsv.gpu.tps``: the
 kernels are solved once, then evaluated at every level's corners and test
-points in one launch), clamped as ``tpsv.render.raster.render`` clamps them.
+points in one launch), clamped as ``tpsv.rendering.raster.render`` clamps them.
 
 Beyond the patch. A region is painted a little beyond its outline (the
 anti-aliased and soft borders mix the colour of the region across, which the
@@ -120,7 +120,7 @@ class PaintZone:
     Parameters
     ----------
     index : ndarray (H, W) int32
-        Region of every pixel at scale 1 (``tpsv.render.pixelmap.region_index``).
+        Region of every pixel at scale 1 (``tpsv.rendering.pixelmap.region_index``).
     region : int
     reach : float
         Pixels beyond the region's own pixels that must stay painted.
@@ -225,7 +225,7 @@ def build_meshes(model, tolerance: float, reach: np.ndarray, device: str = "cpu"
         One per region (possibly with no pieces).
     stats : MeshStats
     """
-    from ..render.pixelmap import region_index
+    from ..rendering.pixelmap import region_index
 
     R = len(model.regions)
     if index is None:

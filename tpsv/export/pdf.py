@@ -10,7 +10,7 @@ The page is the model's canvas, one model pixel per point at the default
    :data:`UNDER_SIGMAS`), the regions in reverse painting order: where two
    regions meet, the one painted first in step 2 ends on top here.
 2. **Regions.** Each region's mesh again, in painting order (the reverse of
-   the renderer's drawing order, ``tpsv.render.pixelmap.draw_order``, so
+   the renderer's drawing order, ``tpsv.rendering.pixelmap.draw_order``, so
    that front regions end on top), clipped to its outline (the viewer's
    anti-aliased clip) or, where it has soft borders with regions painted
    before it, through a soft mask (the blurred step,
@@ -144,7 +144,7 @@ def export_pdf(model, tolerance: float = DEFAULT_TOLERANCE, detail: bool = True,
         raise TpsvError(f"page {W * k:.0f} x {H * k:.0f} pt is larger than PDF viewers take "
                         f"(at most {MAX_PAGE_PT:.0f} pt a side): give a higher dpi")
     st = stats if stats is not None else ExportStats()
-    from ..render.pixelmap import draw_order, region_index
+    from ..rendering.pixelmap import draw_order, region_index
 
     vector = model if model.detail is None else _without_detail(model)
     sigmas, across = edge_sigmas(model)
@@ -419,7 +419,7 @@ def _detail_image(pdf, model, vector, cs, quality: int | None, device: str, clea
     import cv2
     import pikepdf
 
-    from ..render.raster import render
+    from ..rendering.raster import render
 
     W, H = model.width, model.height
     if W * H > MAX_DETAIL_PIXELS:

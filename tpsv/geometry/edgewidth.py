@@ -86,12 +86,19 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
         Rows ``(a, b, sigma)``, ``a < b`` sorted, ``sigma`` in px on the
         1/16 px grid; only borders with ``sigma > 0``.
     """
-    rgb = np.asarray(rgb, np.float64)[..., :3]
+    rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
     edges = _shared_edges(regions)
     if not edges:
         return np.zeros((0, 3))
-    grad = np.sqrt(sum(ndimage.sobel(rgb[..., k], 0) ** 2 + ndimage.sobel(rgb[..., k], 1) ** 2
-                       for k in range(3))) / 8.0
+    grad = np.zeros(rgb.shape[:2])
+    for k in range(3):
+        channel = rgb[..., k].astype(np.float64)
+        term = ndimage.sobel(channel, 0) ** 2
+        term += ndimage.sobel(channel, 1) ** 2
+        grad += term
+    del channel, term
+    grad = np.sqrt(grad, out=grad)
+    grad /= 8.0
     pair = np.array([(a, b) for a, b, _, _ in edges], np.int64)
     p0 = np.array([s for _, _, s, _ in edges])
     p1 = np.array([e for _, _, _, e in edges])

@@ -48,7 +48,7 @@ region-by-region fill's), for any band of rows, in memory bounded by the
 band and :data:`FILL_CROSSINGS_PER_BAND`. The distance transform needs the
 whole image; :class:`GapFill` computes the same labels (the same chamfer
 transform, tie for tie) from a sparse record of the uncovered pixels, so that
-a render in bands (``tpsv.render.raster.render_bands``) gets every pixel of
+a render in bands (``tpsv.rendering.raster.render_bands``) gets every pixel of
 the whole-image fill.
 """
 

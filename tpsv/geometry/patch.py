@@ -516,12 +516,19 @@ def _covers(mask, O, a, b, M, N) -> bool:
     """Whether every pixel corner of ``mask`` maps inside the affine grid's domain."""
     if mask is None or not mask.any():
         return True
-    r, c = np.nonzero(mask)
-    corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
-    st = np.linalg.solve(np.stack([a, b], 1), (corners - O).T).T
     eps = 1e-9
-    return bool((st[:, 0] >= -eps).all() and (st[:, 0] <= M - 1 + eps).all()
-                and (st[:, 1] >= -eps).all() and (st[:, 1] <= N - 1 + eps).all())
+    rows = max(1, (1 << 16) // max(mask.shape[1], 1))  # a band of rows at a time: memory of the band only
+    for r0 in range(0, mask.shape[0], rows):
+        r, c = np.nonzero(mask[r0:r0 + rows])
+        if r.size == 0:
+            continue
+        r = r + r0
+        corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
+        st = np.linalg.solve(np.stack([a, b], 1), (corners - O).T).T
+        if not ((st[:, 0] >= -eps).all() and (st[:, 0] <= M - 1 + eps).all()
+                and (st[:, 1] >= -eps).all() and (st[:, 1] <= N - 1 + eps).all()):
+            return False
+    return True
 
 
 def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = None, n_features: int | None = None) -> Patch:

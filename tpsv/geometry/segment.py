@@ -15,8 +15,8 @@ import numpy as np
 from skimage.measure import label as cc_label
 from skimage.segmentation import find_boundaries, random_walker, slic
 
-from ..color import srgb_to_lab
 from ..errors import TpsvError
+from .bands import lab_image, row_bands
 
 
 def default_min_size(shape: tuple[int, int]) -> int:
@@ -27,24 +27,44 @@ def default_min_size(shape: tuple[int, int]) -> int:
 def _components(labels: np.ndarray) -> tuple[np.ndarray, int]:
     """4-connected components of equal labels, numbered 0..n-1 in raster order of first pixel."""
     comp = cc_label(labels, background=-(1 << 40), connectivity=1)  # background value never occurs
-    comp = comp.astype(np.int64) - 1
+    comp -= 1  # labels 1..n (no background) -> 0..n-1
     return _renumber(comp)
 
 
-def _renumber(comp: np.ndarray) -> tuple[np.ndarray, int]:
-    flat = comp.ravel()
-    _, first, inv = np.unique(flat, return_index=True, return_inverse=True)
-    order = np.argsort(np.argsort(first))  # rank of each unique value by first occurrence
-    out = order[inv].reshape(comp.shape).astype(np.int32)
-    return out, int(first.size)
+def _renumber(comp: np.ndarray, lut: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """``lut[comp]`` (``comp`` itself without ``lut``; values >= 0) renumbered ``0..n-1`` in raster order
+    of each value's first pixel, as int32.
+
+    Band by band (:func:`tpsv.geometry.bands.row_bands`), so that nothing of
+    more than 4 bytes a pixel is made for the whole image.
+    """
+    h, w = comp.shape
+    top = int(comp.max()) + 1 if lut is None else len(lut)
+    first = np.full(top, comp.size, np.int64)  # first flat index of every value (comp.size: absent)
+    for a, b in row_bands(h, w):
+        band = comp[a:b].ravel() if lut is None else lut[comp[a:b].ravel()]
+        vals, at = np.unique(band, return_index=True)
+        new = first[vals] == comp.size
+        first[vals[new]] = at[new] + a * w
+    seen = np.nonzero(first < comp.size)[0]
+    rank = np.zeros(top, np.int32)
+    rank[seen[np.argsort(first[seen])]] = np.arange(seen.size, dtype=np.int32)
+    if lut is not None:
+        rank = rank[lut]
+    out = np.empty(comp.shape, np.int32)
+    for a, b in row_bands(h, w):
+        out[a:b] = rank[comp[a:b]]
+    return out, int(seen.size)
 
 
 def _borders(comp: np.ndarray, n: int):
     """Shared border lengths: (a, b, count) arrays for every adjacent pair a < b (4-neighbours)."""
-    a = np.concatenate([comp[:, :-1].ravel(), comp[:-1, :].ravel()]).astype(np.int64)
-    b = np.concatenate([comp[:, 1:].ravel(), comp[1:, :].ravel()]).astype(np.int64)
-    d = a != b
-    a, b = a[d], b[d]
+    pairs = []
+    for x, y in ((comp[:, :-1], comp[:, 1:]), (comp[:-1, :], comp[1:, :])):
+        d = x != y
+        pairs.append((x[d].astype(np.int64), y[d].astype(np.int64)))
+    a = np.concatenate([p[0] for p in pairs])
+    b = np.concatenate([p[1] for p in pairs])
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     key, cnt = np.unique(lo * n + hi, return_counts=True)
     return key // n, key % n, cnt
@@ -137,7 +157,7 @@ def split_connected(
                 parent[a] = b
         for x in range(n):
             target[x] = find(x)
-        comp, n = _renumber(target[comp])
+        comp, n = _renumber(comp, target)
         if n == 1:
             break
     return comp
@@ -152,7 +172,7 @@ def _check_rgb(rgb: np.ndarray) -> np.ndarray:
         raise TpsvError(f"expected an RGB image of at least 2x2, got shape {rgb.shape}")
     if rgb.dtype == np.uint8:
         rgb = rgb.astype(np.float32) / 255.0
-    return rgb.astype(np.float32)
+    return rgb.astype(np.float32, copy=False)
 
 
 #: Most SLIC superpixels :func:`segment_auto` starts from (one per 64 px on small images, at least 8).
@@ -323,7 +343,7 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     sp, n = _superpixels(rgb)
     if n <= 1:
         return np.zeros((H, W), np.int32)
-    graph = _WardMerge(sp, n, srgb_to_lab(np.clip(rgb, 0, 1)).astype(np.float64), seed)
+    graph = _WardMerge(sp, n, lab_image(rgb, clip=True), seed)
     if n_regions is None:
         history, snapshots = graph.run(1, snapshot_below=AUTO_COUNTS[1])
         parent = _elbow(history, snapshots, graph.parent)

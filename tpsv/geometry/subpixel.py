@@ -88,16 +88,14 @@ class BorderReading:
     """
 
     def __init__(self, comp: np.ndarray, rgb: np.ndarray):
-        comp = np.asarray(comp, np.int64)
-        rgb = np.asarray(rgb, np.float64)[..., :3]
+        comp = np.asarray(comp)
+        rgb = np.asarray(rgb)[..., :3]  # read at the pixels it needs, in float64 there
         H, W = comp.shape
         pad = np.pad(comp, 1, mode="edge")
-        votes = []
-        for dy, dx in _NEIGHBOURS:
-            nb = pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-            votes.append(np.where(nb != comp, nb, -1))
-        votes = np.stack(votes, axis=-1)  # (H, W, 8)
-        border = (votes >= 0).any(axis=-1)
+        neighbours = [pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W] for dy, dx in _NEIGHBOURS]
+        border = np.zeros((H, W), bool)
+        for nb in neighbours:
+            border |= (nb != comp) & (nb >= 0)
         self.across = np.full((H, W), -1, np.int32)
         self.alpha = np.ones((H, W))
         self.trust = np.zeros((H, W))
@@ -105,7 +103,10 @@ class BorderReading:
         ys, xs = np.nonzero(border)
         if ys.size == 0:
             return
-        v = votes[ys, xs]
+        # the other regions among the 8 neighbours, of the border pixels only (-1: the pixel's own)
+        v = np.stack([nb[ys, xs] for nb in neighbours], axis=1).astype(np.int64)
+        v = np.where(v != comp[ys, xs][:, None], v, -1)
+        del neighbours, pad
         # the most frequent other region among the neighbours (ties: the smaller index)
         best = np.full(len(ys), -1, np.int64)
         count = np.zeros(len(ys), np.int64)
@@ -120,7 +121,6 @@ class BorderReading:
         h = WINDOW // 2
         cpad = np.pad(comp, h, mode="constant", constant_values=-1)
         bpad = np.pad(border, h, mode="constant", constant_values=True)
-        rpad = np.pad(rgb, ((h, h), (h, h), (0, 0)), mode="edge")
         offs = [(dy, dx) for dy in range(-h, h + 1) for dx in range(-h, h + 1)]
         n = len(ys)
         sums = {key: np.zeros((n, 3)) for key in ("a", "b", "fa", "fb")}
@@ -129,7 +129,7 @@ class BorderReading:
         for dy, dx in offs:
             cc = cpad[ys + h + dy, xs + h + dx]
             bb = bpad[ys + h + dy, xs + h + dx]
-            col = rpad[ys + h + dy, xs + h + dx]
+            col = rgb[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)].astype(np.float64)  # edge padding
             sq = (col * col).sum(axis=1)
             for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == best) & ~bb), ("fa", cc == own), ("fb", cc == best)):
                 sums[key] += col * sel[:, None]
@@ -148,7 +148,7 @@ class BorderReading:
         mu_b, sd_b = side("b", "fb")
         d = mu_a - mu_b
         dd = (d * d).sum(axis=1)
-        a = ((rgb[ys, xs] - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
+        a = ((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
         self.alpha[ys, xs] = np.clip(a, 0.0, 1.0)
         # a side whose colour varies (texture) is a poor reference: trust fades out as its
         # spread goes from a quarter to a half of the contrast
@@ -159,19 +159,27 @@ class BorderReading:
 
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:
         """The membership field ``m`` of ``region`` in ``window`` (rows, cols) of the image."""
+        # m = w read + (1 - w) smooth, worked out in place (a window may be the whole image)
         sub = comp[window] == region
         smooth = ndimage.gaussian_filter(sub.astype(np.float64), SMOOTH_SIGMA, mode="nearest")
         across = self.across[window]
         alpha = self.alpha[window]
         trust = self.trust[window]
         # read from the colour: own border pixels facing one region, and that region's facing back
-        read = np.where(sub, alpha, 1.0 - alpha)
+        m = 1.0 - alpha
+        np.copyto(m, alpha, where=sub)
         facing = np.where(sub, across >= 0, across == region)
         w = np.where(facing, trust, 0.0)
-        m = w * read + (1.0 - w) * smooth
+        del facing
+        m *= w
+        np.subtract(1.0, w, out=w)
+        w *= smooth
+        m += w
+        del w, smooth
         # away from the border the mask itself (the smoothing reaches 2 px into flat parts)
-        border_near = ndimage.binary_dilation(across >= 0, iterations=1)
-        return np.where(border_near, m, sub.astype(np.float64))
+        out = sub.astype(np.float64)
+        np.copyto(out, m, where=ndimage.binary_dilation(across >= 0, iterations=1))
+        return out
 
 
 def _contours(reading: BorderReading, comp: np.ndarray, region: int,
@@ -183,21 +191,21 @@ def _contours(reading: BorderReading, comp: np.ndarray, region: int,
     H, W = comp.shape
     r0, r1 = max(box[0].start - 2, 0), min(box[0].stop + 2, H)
     c0, c1 = max(box[1].start - 2, 0), min(box[1].stop + 2, W)
-    m = reading.field(comp, region, (slice(r0, r1), slice(c0, c1)))
     # beyond the image's frame the field carries on as it is at the frame (the
     # frame is no border: contours cross it straight and are cut there), and
-    # everything is closed by a ring of zeros
+    # everything is closed by a ring of zeros (one padded copy: P rows of the edge, then the ring)
     P = 3
-    m = np.pad(m, P, mode="edge")
+    m = np.pad(reading.field(comp, region, (slice(r0, r1), slice(c0, c1))), P + 1, mode="edge")
+    m[0] = m[-1] = 0.0
+    m[:, 0] = m[:, -1] = 0.0
     if r0 > 0:
-        m[:P] = 0.0
+        m[1:P + 1] = 0.0
     if r1 < H:
-        m[-P:] = 0.0
+        m[-P - 1:-1] = 0.0
     if c0 > 0:
-        m[:, :P] = 0.0
+        m[:, 1:P + 1] = 0.0
     if c1 < W:
-        m[:, -P:] = 0.0
-    m = np.pad(m, 1, constant_values=0.0)
+        m[:, -P - 1:-1] = 0.0
     polys = []
     for con in find_contours(m, 0.5):
         if np.allclose(con[0], con[-1]):

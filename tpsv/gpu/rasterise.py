@@ -4,7 +4,7 @@ One thread per output pixel: its region, its ``(S, T)``, the at most 2 x 2
 covering kernels of the region's grid, the TPS of each in its local frame,
 the partition-of-unity blend (``tpsv.tps.blend`` module doc), then Lab ->
 sRGB (:func:`tpsv.gpu.color.lab_to_srgb`), clamped to ``[0, 1]``. The
-full-frame rasteriser, the pixel-list rasteriser (``tpsv.render.live``) and
+full-frame rasteriser, the pixel-list rasteriser (``tpsv.rendering.live``) and
 the scattered-point evaluation share one per-pixel body (:func:`_shade`,
 :func:`_blend`); the kernels' arrays reach them as one
 :class:`tpsv.gpu.device.BlendArrays`.

@@ -432,7 +432,7 @@ def coefficients(dk: DeviceKernels):
     return sol.pts.numpy(), sol.w64.numpy(), sol.b64.numpy(), sol.status.numpy()
 
 
-# --------------------------------------------------------------------------- incremental rebuild (tpsv.render.live)
+# --------------------------------------------------------------------------- incremental rebuild (tpsv.rendering.live)
 
 
 @wp.kernel

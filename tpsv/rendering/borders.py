@@ -1,7 +1,11 @@
 """Anti-aliased region borders (render step 5): how much of a pixel the border leaves to the region across.
 
+This module is the rule and its host reference implementation; the renderer
+runs the same rule as a Warp kernel (:mod:`tpsv.gpu.coverage`, on the CPU and
+CUDA devices alike), and the tests hold the two to each other.
+
 The region map gives every output pixel one region, sampled at its centre
-(:mod:`tpsv.render.pixelmap`), which alone draws a border as a staircase of
+(:mod:`tpsv.rendering.pixelmap`), which alone draws a border as a staircase of
 whole pixels. Here every pixel near a border gets its coverage instead: with
 ``d`` the distance (in output pixels) from the pixel centre to the nearest
 outline, the pixel's own region covers ``alpha = min(1, 0.5 + d)`` of it and
@@ -68,6 +72,71 @@ class BorderMix:
         return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros((0, 2)))
 
 
+def edge_widths(model, kx: float, ky: float) -> tuple[np.ndarray, np.ndarray]:
+    """The soft borders of ``model`` as sorted pair keys ``a * R + b`` (``a < b``) and their width in output px.
+
+    Parameters
+    ----------
+    model : Model
+    kx, ky : float
+        Output pixels per model pixel.
+
+    Returns
+    -------
+    keys : ndarray (n,) int64
+    sigma : ndarray (n,) float64
+    """
+    blur = np.asarray(getattr(model, "blur", np.zeros((0, 3))), np.float64).reshape(-1, 3)
+    blur = blur[blur[:, 2] > 0]
+    n = max(len(model.regions), 1)
+    order = np.argsort(blur[:, 0] * n + blur[:, 1], kind="stable")
+    return (blur[order, 0] * n + blur[order, 1]).astype(np.int64), blur[order, 2] * float(np.sqrt(kx * ky))
+
+
+def outline_pieces(model, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every outline of ``model`` cut into pieces of at most :data:`PIECE_PX` output pixels.
+
+    Runs along the image's frame are no border: a pixel near the frame
+    measures to the real one. An output that would need more than
+    :data:`MAX_PIECES` pieces gets longer ones.
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int
+        Output size.
+
+    Returns
+    -------
+    a, d : ndarray (n, 2) float64
+        Piece starts and vectors, output pixels (``n`` may be 0).
+    """
+    k = np.array([width / float(model.width), height / float(model.height)])
+    ends = [np.asarray(p, np.float64) for reg in model.regions for p in reg.outline if len(p) >= 2]
+    none = np.zeros((0, 2)), np.zeros((0, 2))
+    if not ends:
+        return none
+    a = np.concatenate(ends)
+    b = np.concatenate([np.roll(p, -1, axis=0) for p in ends])
+    frame = np.zeros(len(a), bool)
+    for axis, size in ((0, model.width), (1, model.height)):
+        for edge in (0.0, float(size)):
+            frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
+    a, b = a[~frame] * k, b[~frame] * k
+    seg = np.hypot(*(b - a).T)
+    ok = np.isfinite(seg)
+    a, b, seg = a[ok], b[ok], seg[ok]
+    if not len(a):
+        return none
+    step = max(PIECE_PX, float(seg.sum()) / MAX_PIECES)
+    n = np.maximum(1, np.ceil(seg / step)).astype(np.int64)
+    i = np.repeat(np.arange(len(a)), n)
+    first = np.cumsum(n) - n
+    t0 = (np.arange(int(n.sum())) - first[i]) / n[i]
+    d = (b - a)[i]
+    return a[i] + t0[:, None] * d, d / n[i][:, None]
+
+
 class Borders:
     """Every outline of a model as short pieces in output pixels, prepared once per output size.
 
@@ -84,46 +153,13 @@ class Borders:
         self.width, self.height = int(width), int(height)
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
-        k = np.array([self.kx, self.ky])
-        # edge widths in output pixels, looked up by the pair key a * R + b (a < b)
-        blur = np.asarray(getattr(model, "blur", np.zeros((0, 3))), np.float64).reshape(-1, 3)
-        blur = blur[blur[:, 2] > 0]
-        n = max(len(model.regions), 1)
-        order = np.argsort(blur[:, 0] * n + blur[:, 1], kind="stable")
-        self.n_regions = n
-        self.blur_keys = (blur[order, 0] * n + blur[order, 1]).astype(np.int64)
-        self.blur_sigma = blur[order, 2] * float(np.sqrt(self.kx * self.ky))
+        self.n_regions = max(len(model.regions), 1)
+        self.blur_keys, self.blur_sigma = edge_widths(model, self.kx, self.ky)
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
         self.reach_px = 0.5 + 3.0 * float(self.blur_sigma.max(initial=0.0))
         self.halo = int(np.ceil(self.reach_px)) + 1
-        ends = [np.asarray(p, np.float64) for reg in model.regions for p in reg.outline if len(p) >= 2]
-        if not ends:
-            self.tree = None
-            return
-        a = np.concatenate(ends)
-        b = np.concatenate([np.roll(p, -1, axis=0) for p in ends])
-        # runs along the image's frame are no border: a pixel near the frame measures to the real one
-        frame = np.zeros(len(a), bool)
-        for axis, size in ((0, model.width), (1, model.height)):
-            for edge in (0.0, float(size)):
-                frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
-        a, b = a[~frame] * k, b[~frame] * k
-        if not len(a):
-            self.tree = None
-            return
-        seg = np.hypot(*(b - a).T)
-        ok = np.isfinite(seg)
-        a, b, seg = a[ok], b[ok], seg[ok]
-        total = float(seg.sum())
-        step = max(PIECE_PX, total / MAX_PIECES)
-        n = np.maximum(1, np.ceil(seg / step)).astype(np.int64)
-        i = np.repeat(np.arange(len(a)), n)
-        first = np.cumsum(n) - n
-        t0 = (np.arange(int(n.sum())) - first[i]) / n[i]
-        d = (b - a)[i]
-        self.a = a[i] + t0[:, None] * d
-        self.d = d / n[i][:, None]
-        self.tree = cKDTree(self.a + 0.5 * self.d)
+        self.a, self.d = outline_pieces(model, self.width, self.height)
+        self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
 
     def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> BorderMix:
         """The border pixels of rows ``y0 .. y0 + len(index)`` and their coverage.
@@ -150,12 +186,13 @@ class Borders:
         up = index[:1] if up is None else np.asarray(up).reshape(-1, W)
         down = index[-1:] if down is None else np.asarray(down).reshape(-1, W)
         top = up.shape[0]
-        ext = np.vstack([up, index, down])
-        ext = np.hstack([ext[:, :1], ext, ext[:, -1:]])
+        # the band and its halo, the first and last rows and columns repeated once: one array
+        # (``ext`` is its rows of the band and halo, a view)
+        pad = np.pad(np.vstack([up, index, down]), 1, mode="edge")
+        ext = pad[1:-1]
         inner = ext[:, 1:-1]
         # pixels with an 8-neighbour of another region, over the band and its halo
         # (beyond the first and last rows the rows repeat: no neighbour differs there)
-        pad = np.pad(ext, ((1, 1), (0, 0)), mode="edge")
         n = inner.shape[0]
         differs = np.zeros(inner.shape, bool)
         for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
@@ -267,4 +304,4 @@ class Borders:
         return other
 
 
-__all__ = ["BorderMix", "Borders", "MAX_PIECES", "NEAREST", "PIECE_PX"]
+__all__ = ["BorderMix", "Borders", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces"]

@@ -24,13 +24,13 @@ kernels, the rendered image) and brings them up to date for a new model:
    a re-solved kernel's cell (a kernel's support reaches at most half a cell
    into its neighbours), plus the geometry changes of step 1
    (:func:`tpsv.gpu.tps.rasterise_pixels`).
-5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.render.borders`)
+5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.rendering.borders`)
    are mixed into a copy of that frame after every update; where they are and
    their ``(S, T)`` across are found again only when the geometry changed.
 6. **Detail.** The detail layer (:mod:`tpsv.gpu.detail`) is added to every
    pixel of that copy; its texture is uploaded again only when it changed.
 
-The result is bit-identical to :func:`tpsv.render.raster.render` of the new model
+The result is bit-identical to :func:`tpsv.rendering.raster.render` of the new model
 (tests check it); :class:`UpdateStats` says how much was rebuilt.
 """
 
@@ -47,7 +47,7 @@ from ..gpu import resolve_device
 # Warp is imported with gpu.tps; this module exists only to render, so it pays for it on import
 from ..gpu import tps as gtps
 from ..gpu import warp
-from .borders import Borders
+from ..gpu.coverage import DeviceBorders
 from .pixelmap import draw_order, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st, output_size
 
@@ -162,7 +162,7 @@ class LiveImage:
     ----------
     model : Model
     width, height, scale : optional
-        Output size, as for :func:`tpsv.render.raster.render` (default scale 1).
+        Output size, as for :func:`tpsv.rendering.raster.render` (default scale 1).
     device : str
         Warp device.
     threads : int, optional
@@ -325,7 +325,8 @@ class LiveImage:
         the geometry stays.
         """
         if self._mix is None:
-            mix = Borders(model, self.W, self.H).mix(self._pm.index)
+            mix = DeviceBorders(model, self.W, self.H, self.device).mix_device(self._pm.index_d,
+                                                                             threads=self.threads).numpy()
             self._mix = (mix, border_st(model, mix, self.device))
         mix, st = self._mix
         self._shown = warp().clone(self._out)

@@ -69,6 +69,7 @@ def back_project(
     size: tuple[int, int],
     iterations: int = 6,
     device: str = "cpu",
+    progress=None,
 ) -> Model:
     """Fit feature colours so that the render at ``size``, area-downscaled to the
     input size, reproduces ``rgb``.
@@ -84,6 +85,8 @@ def back_project(
         Back-projection steps (the gain levels off after about five).
     device : str
         Warp device for the renders.
+    progress : callable(done, total), optional
+        Called after each step.
 
     Returns
     -------
@@ -94,13 +97,17 @@ def back_project(
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
     current = target.copy()
     feats = model.features
-    for _ in range(iterations):
+    for step in range(iterations):
+        if progress is not None:
+            progress(step, iterations)
         big = render(model, width=size[0], height=size[1], device=device)
         down = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA).reshape(-1, 3)[pixel]
         # Colours may leave the gamut a little so that blurred neighbours land on target.
         current = np.clip(current + (target - down), -0.25, 1.25)
         feats = Features(region=feats.region, st=feats.st, lab=srgb_to_lab(current), kind=feats.kind, pair=feats.pair)
         model = Model(width=model.width, height=model.height, regions=model.regions, features=feats, params=model.params)
+    if progress is not None:
+        progress(iterations, iterations)
     return model
 
 
@@ -110,22 +117,24 @@ def magnify_raster(
     labels: np.ndarray | None = None,
     iterations: int = 6,
     device: str = "cpu",
+    progress=None,
 ) -> tuple[Model, np.ndarray]:
     """Magnify a photo to ``size`` = (width, height): dense model + back-projection.
 
-    Returns the fitted model and the render at ``size``.
+    Returns the fitted model and the render at ``size``. ``progress``:
+    callable(done, total), called after each back-projection step.
 
     Raises
     ------
     TpsvError
         ``size`` is beyond what one in-memory render holds
-        (:data:`tpsv.render.raster.MAX_ARRAY_PIXELS`): the back-projection
+        (:data:`tpsv.rendering.raster.MAX_ARRAY_PIXELS`): the back-projection
         compares whole renders with the photo, so it is refused before the fit.
     """
     if size[0] * size[1] > MAX_ARRAY_PIXELS:
         raise TpsvError(f"magnifying a raster to {size[0]}x{size[1]} px is beyond tpsv's limit "
                         f"({MAX_ARRAY_PIXELS:,} px); vectorize it and render the .tpsv instead")
     model, pixel = dense_model(rgb, labels)
-    model = back_project(model, pixel, rgb, size, iterations=iterations, device=device)
+    model = back_project(model, pixel, rgb, size, iterations=iterations, device=device, progress=progress)
     return model, render(model, width=size[0], height=size[1], device=device)
 

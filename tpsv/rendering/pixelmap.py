@@ -7,8 +7,8 @@
    region's patch.
 
 Everything that needs to know which feature colours reach which pixel builds
-this map here: the renderer (:mod:`tpsv.render.raster`), the incremental
-renderer (:mod:`tpsv.render.live`) and the encoder's colour fit and feature
+this map here: the renderer (:mod:`tpsv.rendering.raster`), the incremental
+renderer (:mod:`tpsv.rendering.live`) and the encoder's colour fit and feature
 lattices at scale 1 (``tpsv.encode.fit.pixel_maps``,
 ``tpsv.encode.vectorize.Geometry.pixel_st``), so the fit sees what the
 renderer draws.
@@ -18,7 +18,7 @@ Output pixel ``(X, Y)`` of a ``W x H`` map samples
 (``tpsv.model``), ``(Ws, Hs)`` the model's size.
 
 :class:`BandMaps` gives the same maps band of rows by band of rows, for
-outputs too large to map whole (``tpsv.render.raster.render_bands``).
+outputs too large to map whole (``tpsv.rendering.raster.render_bands``).
 
 Draw order: where region outlines overlap (only after an edit such as
 ``deform`` moves a region), the region drawn first keeps the pixel. Regions are

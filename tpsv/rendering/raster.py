@@ -1,6 +1,6 @@
 """Model -> pixels at any size (paper V and VII-A).
 
-1-2. :func:`tpsv.render.pixelmap.pixel_map`: the region and the ``(S, T)`` of
+1-2. :func:`tpsv.rendering.pixelmap.pixel_map`: the region and the ``(S, T)`` of
    every output pixel (outline rasterisation in drawing order, then the
    inverse patch map).
 3. ``tps.group_kernels``: sub-patch kernels (derived at load time).
@@ -8,16 +8,17 @@
    by default each kernel is clamped to its features' Lab range before
    blending (removes TPS overshoot; ``clamp=False`` for the plain TPS).
 
-5. :mod:`tpsv.render.borders`: every pixel a region border crosses gets
-   its box-filter coverage of the region across, mixed in on the device
-   (``antialias=False``: one region per pixel, its centre's).
+5. :mod:`tpsv.gpu.coverage` (the device kernel of what
+   :mod:`tpsv.rendering.borders` specifies): every pixel a region border
+   crosses gets its box-filter coverage of the region across, mixed in on
+   the device (``antialias=False``: one region per pixel, its centre's).
 
 Steps 3-5 are :func:`shade`, which the encoder calls on pixel maps it keeps.
 
 Output pixel ``(X, Y)`` at scale ``k`` samples ``((X + 0.5) / k, (Y + 0.5) / k)``
 of the model's pixel space (``tpsv.model``); for a size ``W x H`` the scale is
 per axis, ``W / model.width`` and ``H / model.height``. Where outlines
-overlap, the draw order decides (:mod:`tpsv.render.pixelmap`).
+overlap, the draw order decides (:mod:`tpsv.rendering.pixelmap`).
 
 Memory: :func:`render` draws an output of at most :data:`ONE_PIECE_PIXELS`
 pixels in one piece; a larger one, and any output of :func:`render_bands`
@@ -46,7 +47,7 @@ from .. import tps
 from ..errors import TpsvError
 from ..image import to_uint8
 from ..gpu import resolve_device, warp
-from .borders import Borders
+from .borders import BorderMix
 from .pixelmap import BandMaps, no_tick, pixel_map
 
 #: Largest output side, in pixels.
@@ -125,8 +126,8 @@ def _as_int(v) -> int:
 
 
 def render(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None, clamp: bool = True,
-           antialias: bool = True) -> np.ndarray:
-    """Render ``model``; returns float32 sRGB ``(H, W, 3)`` in ``[0, 1]``.
+           antialias: bool = True, alpha: bool = False, keep_on_device: bool = False):
+    """Render ``model``; returns float32 sRGB ``(H, W, 3)`` in ``[0, 1]`` (RGBA ``(H, W, 4)`` with ``alpha``).
 
     ``kernels``: a :class:`tpsv.tps.KernelSet` from an earlier
     ``tps.group_kernels(model)`` to reuse (it must belong to this model).
@@ -134,8 +135,17 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
     ``clamp``: clamp each kernel to its features' Lab range before blending
     (``tpsv.gpu.tps``; False gives the plain localised TPS).
     ``antialias``: mix the regions across borders into the pixels the
-    borders cross (:mod:`tpsv.render.borders`); False gives one region per
+    borders cross (:mod:`tpsv.rendering.borders`); False gives one region per
     pixel (its centre's).
+    ``alpha``: add the opacity, straight (not premultiplied): 0 in
+    transparent regions (``Region.transparent``), 1 elsewhere, and along a
+    border with a transparent region the opaque side's coverage, that side's
+    colour unmixed (:func:`opacity`). Without it a transparent region shows
+    as the backdrop its RGBA input was flattened onto (``tpsv.encode.alpha``).
+    ``keep_on_device``: return the frame where it was rendered, a ``(H, W)``
+    ``wp.array`` of ``wp.vec3f`` on ``device`` (the same values, not copied
+    to the host), for a viewer or an encoder that goes on working on the
+    GPU; outputs of at most :data:`ONE_PIECE_PIXELS`, without ``alpha``.
 
     Outputs over :data:`ONE_PIECE_PIXELS` pixels are rendered in bands
     (:func:`render_bands`, identical pixels) into the array; outputs over
@@ -143,20 +153,24 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
     band by band with :func:`render_bands`.
     """
     W, H = output_size(model, width, height, scale)
+    if keep_on_device and (alpha or W * H > ONE_PIECE_PIXELS):
+        raise TpsvError(f"keep_on_device renders RGB frames of at most {ONE_PIECE_PIXELS:,} px "
+                        f"(asked: {W}x{H}{' with alpha' if alpha else ''})")
     if W * H <= ONE_PIECE_PIXELS:
-        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias)
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias,
+                         alpha=alpha, download=not keep_on_device)
         return img
     if W * H > MAX_ARRAY_PIXELS:
         raise TpsvError(f"output {W}x{H} px is too large to hold in memory as one image "
                         f"(at most {MAX_ARRAY_PIXELS:,} px); render it band by band (render_bands)")
-    img = np.empty((H, W, 3), np.float32)
-    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, TILE_PIXELS, antialias):
+    img = np.empty((H, W, 4 if alpha else 3), np.float32)
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, TILE_PIXELS, antialias, alpha):
         img[y0:y0 + rows.shape[0]] = rows
     return img
 
 
 def render_bands(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
-                 clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True):
+                 clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True, alpha: bool = False):
     """Render ``model`` band by band: yields ``(y0, rows)``, top to bottom.
 
     ``rows`` is uint8 sRGB ``(h, W, 3)``, rows ``y0 .. y0 + h`` of the output,
@@ -171,21 +185,22 @@ def render_bands(model, width=None, height=None, scale=None, device: str = "cpu"
     ------
     y0 : int
     rows : ndarray (h, W, 3) uint8
+        ``(h, W, 4)`` RGBA with ``alpha``.
     """
     W, H = output_size(model, width, height, scale)
-    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias):
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias, alpha):
         yield y0, to_uint8(rows)
 
 
 def render_png(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
-               clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True):
+               clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True, alpha: bool = False):
     """The PNG file of the render, piece by piece: what ``tpsv render`` writes.
 
     An output of at most ``max_pixels`` pixels is one piece,
     ``tpsv.image.encode_png(render(...))`` (the bytes tpsv has always
     written). A larger one is streamed (:mod:`tpsv.png`) from
     :func:`render_bands`: memory stays bounded, and the decoded pixels are the
-    same 8-bit image. Arguments as :func:`render_bands`.
+    same 8-bit image. Arguments as :func:`render_bands` (``alpha``: an RGBA PNG).
 
     Yields
     ------
@@ -197,19 +212,23 @@ def render_png(model, width=None, height=None, scale=None, device: str = "cpu", 
 
     W, H = output_size(model, width, height, scale)
     if W * H <= max_pixels:
-        yield encode_png(render(model, W, H, None, device, kernels, threads, clamp, antialias))
+        yield encode_png(render(model, W, H, None, device, kernels, threads, clamp, antialias, alpha))
         return
-    yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels, antialias))
+    yield from png_chunks(W, H, render_bands(model, W, H, None, device, kernels, threads, clamp, max_pixels, antialias,
+                                             alpha), channels=4 if alpha else 3)
 
 
-def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int, antialias: bool = True):
+def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int, antialias: bool = True,
+           alpha: bool = False):
     """``(y0, float32 rows)`` of the ``W x H`` render, in bands of at most ``max_pixels`` pixels."""
     max_pixels = max(int(max_pixels), 1)
     if W * H <= max_pixels:
-        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias)
+        img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias,
+                         alpha=alpha)
         yield 0, img
         return
     from ..gpu import tps as gtps
+    from ..gpu.coverage import DeviceBorders
 
     device = resolve_device(device)
     rows = max(1, max_pixels // W)
@@ -217,22 +236,25 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
     if ks.grid.shape[0] != len(model.regions):
         raise TpsvError("the kernel set does not belong to this model")
     maps = BandMaps(model, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
-    borders = Borders(model, W, H) if antialias else None
+    borders = DeviceBorders(model, W, H, device) if antialias else None
     dk = gtps.solve(gtps.upload(ks, device), threads=threads)
     dd = device_detail(model, device)
     for y0 in range(0, H, rows):
         y1 = min(y0 + rows, H)
         pm = maps.band(y0, y1)
         out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=threads, clamp=clamp)
+        mix = None
         if borders is not None:
             hr = borders.halo
             halo = (maps.index(max(0, y0 - hr), y0) if y0 > 0 else None,
                     maps.index(y1, min(H, y1 + hr)) if y1 < H else None)
-            _mix_borders(model, dk, out, borders.mix(pm.index, y0, halo), threads, clamp, maps.patch_set)
+            mix = borders.mix_device(pm.index_d, y0, halo=halo, threads=threads).numpy()
+        opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
+        _mix_borders(model, dk, out, mix, threads, clamp, maps.patch_set)
         _add_detail(model, out, pm.index_d, pm.st_d, device, threads, dd)
-        del pm
-        yield y0, out.numpy().reshape(y1 - y0, W, 3)
-        del out
+        band = out.numpy().reshape(y1 - y0, W, 3)
+        del pm, out
+        yield y0, band if opaque is None else np.dstack([band, opaque])
 
 
 def render_timed(model, width=None, height=None, scale=None, device: str = "cpu", repeat: int = 1, threads=None, clamp: bool = True):
@@ -286,7 +308,7 @@ class Stopwatch:
 
 
 def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, clamp: bool = True, tick=no_tick,
-          borders=None) -> np.ndarray:
+          borders=None, download: bool = True):
     """Render steps 3-4: the colours of pixels whose region and ``(S, T)`` are known.
 
     Parameters
@@ -308,12 +330,15 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
         Called after the ``group``, ``upload``, ``solve``, ``rasterise``,
         ``borders`` and ``download`` stages.
     borders : BorderMix, optional
-        Anti-aliased border pixels (:mod:`tpsv.render.borders`) to mix in.
+        Anti-aliased border pixels (:mod:`tpsv.rendering.borders`) to mix in.
+    download : bool
+        Copy the result to the host (else return the device frame).
 
     Returns
     -------
     ndarray (H, W, 3) float32
-        sRGB in ``[0, 1]``.
+        sRGB in ``[0, 1]``; without ``download`` the ``(H, W)`` ``wp.vec3f``
+        array on ``device``.
     """
     # gpu.tps imports Warp and defines its kernels: only commands that render pay for it
     from ..gpu import tps as gtps
@@ -334,6 +359,8 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     tick("borders")
     _add_detail(model, out, index, st, device, threads)
     tick("detail")
+    if not download:
+        return out
     img = out.numpy().reshape(H, W, 3)
     tick("download")
     return img
@@ -375,14 +402,58 @@ def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> Non
     gtps.mix_border(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
 
 
-def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool, antialias: bool = True):
+def opacity(model, index: np.ndarray, mix: BorderMix | None) -> tuple[np.ndarray, BorderMix | None]:
+    """The alpha channel of a frame or band, and its border mix for straight alpha.
+
+    A pixel of a transparent region has alpha 0, any other 1. A border
+    pixel's alpha is the coverage of its opaque side(s); its colour is the
+    opaque side's alone (mixed as usual when both sides are opaque), so that
+    compositing the straight-alpha image over a background gives the
+    anti-aliased edge.
+
+    Parameters
+    ----------
+    model : Model
+    index : ndarray (h, W) int32
+        Region of every pixel (-1: none, shown opaque).
+    mix : BorderMix or None
+
+    Returns
+    -------
+    alpha : ndarray (h, W) float32
+    mix : BorderMix or None
+        ``mix`` without the pixels that take only their own colour, and with
+        coverage 0 (the region across's colour) where the own region is transparent.
+    """
+    clear = np.array([bool(getattr(r, "transparent", False)) for r in model.regions] + [False])
+    alpha = (~clear[index]).astype(np.float32)
+    if mix is None or mix.pixels.size == 0 or not clear.any():
+        return alpha, mix
+    own = clear[index.reshape(-1)[mix.pixels]]
+    across = clear[mix.other]
+    alpha.reshape(-1)[mix.pixels] = np.where(own, 0.0, mix.alpha) + np.where(across, 0.0, 1.0 - mix.alpha)
+    keep = ~across  # an opaque region across gives its colour; a transparent one gives none
+    cover = np.where(own, np.float32(0.0), mix.alpha)[keep]
+    return alpha, BorderMix(pixels=mix.pixels[keep], other=mix.other[keep], alpha=cover.astype(np.float32),
+                            xy=mix.xy[keep])
+
+
+def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool, antialias: bool = True,
+            alpha: bool = False, download: bool = True):
     """:func:`render` and, when ``timed``, the seconds per stage (else an empty dict)."""
     W, H = output_size(model, width, height, scale)
     device = resolve_device(device)
     watch = Stopwatch(device) if timed else None
     tick = watch if timed else no_tick
     pm = pixel_map(model, W, H, device, tick)
-    mix = Borders(model, W, H).mix(pm.index) if antialias else None
+    mix = None
+    if antialias:
+        from ..gpu.coverage import DeviceBorders
+
+        mix = DeviceBorders(model, W, H, device).mix_device(pm.index_d, threads=threads).numpy()
+    opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
     tick("edges")
-    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick, borders=mix)
+    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick, borders=mix, download=download)
+    if opaque is not None:
+        img = np.dstack([img, opaque])
     return img, (watch.times if timed else {})

@@ -1,0 +1,196 @@
+"""Anti-aliased border coverage on a Warp device (tpsv.gpu.coverage) against the host's (tpsv.rendering.borders)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tpsv.geometry.regions import build_regions
+from tpsv.gpu.coverage import DeviceBorders, border_mix
+from tpsv.model import Features, Model, Params
+from tpsv.rendering.borders import Borders
+from tpsv.rendering.pixelmap import region_index
+
+
+def blob_model(w=48, h=36, n=6, seed=0, blur=None) -> Model:
+    """Regions traced from smooth random blobs (curved borders, junctions of three); ``blur``: sigma of each pair."""
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.random((h, w, n)).astype(np.float32), (0, 0), 4.0)
+    labels = np.argmax(noise.reshape(h, w, n), axis=-1)
+    regions, _ = build_regions(labels)
+    F = len(regions) * 4
+    lab = rng.random((F, 3)) * (100, 60, 60) - (0, 30, 30)
+    features = Features(np.repeat(np.arange(len(regions)), 4).astype(np.int32), rng.random((F, 2)),
+                        lab.astype(np.float32), np.zeros(F, np.uint8), np.full(F, -1, np.int32))
+    m = Model(w, h, regions, features, Params(kernel_size=8))
+    if blur is not None:
+        # every pair of regions that touch, some sharp, the others of widths up to ``blur``
+        idx = region_index(m, w, h)
+        pairs = set()
+        for a, b in ((idx[:, :-1], idx[:, 1:]), (idx[:-1], idx[1:])):
+            d = a != b
+            pairs |= {(min(p, q), max(p, q)) for p, q in zip(a[d].tolist(), b[d].tolist())}
+        rows = [[p, q, blur * rng.uniform(0.3, 1.0)] for p, q in sorted(pairs) if rng.random() < 0.8]
+        m.blur = np.array(rows, np.float64).reshape(-1, 3)
+    return m
+
+
+def exact_host(monkeypatch):
+    """Make the host measure each pixel to the nearest of its 64 nearest pieces: the nearest piece."""
+    nearest = Borders._nearest
+    monkeypatch.setattr(Borders, "_nearest", lambda self, p, k: nearest(self, p, 64))
+
+
+def tied(borders, pixels, W: int, y0: int = 0) -> np.ndarray:
+    """Whether each pixel's centre is equally near two pieces with different feet (either may give the region across)."""
+    p = np.column_stack([pixels % W + 0.5, pixels // W + y0 + 0.5])
+    w = p[:, None, :] - borders.a[None]
+    t = np.clip((w * borders.d).sum(-1) / np.maximum((borders.d ** 2).sum(-1), 1e-300), 0.0, 1.0)
+    foot = borders.a[None] + t[..., None] * borders.d[None]
+    dist = np.hypot(*np.moveaxis(p[:, None, :] - foot, -1, 0))
+    near = dist <= dist.min(axis=1, keepdims=True) + 1e-12
+    spread = [np.ptp(f[k], axis=0).max() for f, k in zip(foot, near)]
+    return np.array(spread) > 1e-9
+
+
+def differences(host, dev, borders=None, W=None) -> dict:
+    """How two border mixes differ: pixels in one only, and, over the pixels in both, other / alpha / xy.
+
+    With ``borders``, pixels whose centre is as near two outlines (:func:`tied`; either
+    gives the region across) count as ``ties``, not as differences.
+    """
+    assert np.all(np.diff(dev.pixels) > 0), "device pixels are not in increasing order"
+    o = np.argsort(host.pixels)
+    hp, ho, ha, hxy = host.pixels[o], host.other[o], host.alpha[o], host.xy[o]
+    common, ih, jd = np.intersect1d(hp, dev.pixels, return_indices=True)
+    one = np.setxor1d(hp, dev.pixels)
+    same = ho[ih] == dev.other[jd]
+    tie_one = tie_other = np.zeros(0, bool)
+    if borders is not None:
+        tie_one, tie_other = tied(borders, one, W), tied(borders, common[~same], W)
+    da = np.abs(ha[ih] - dev.alpha[jd])[same]
+    return {
+        "n": len(np.union1d(hp, dev.pixels)),
+        "one_side": int(len(one) - tie_one.sum()),
+        "other": int((~same).sum() - tie_other.sum()),
+        "ties": int(tie_one.sum() + tie_other.sum()),
+        "alpha": float(da.max(initial=0.0)),
+        "alpha_over": int((da > 1e-4).sum()),
+        "xy": float(np.abs(hxy[ih] - dev.xy[jd]).max(initial=0.0)),
+    }
+
+
+CASES = [(seed, blur, scale) for seed, blur in ((0, None), (1, 0.6), (2, 1.2)) for scale in (1.0, 3.7, 8.0)]
+
+
+@pytest.mark.parametrize("seed, blur, scale", CASES)
+def test_equals_the_host_measuring_to_the_nearest_piece(seed, blur, scale, monkeypatch):
+    """With the host's distance the true one, the two agree on every pixel."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    idx = region_index(m, W, H)
+    exact_host(monkeypatch)
+    b = Borders(m, W, H)
+    host = b.mix(idx)
+    dev = DeviceBorders(m, W, H).mix(idx)
+    assert len(host.pixels) > 0
+    diff = differences(host, dev, b, W)
+    assert diff["one_side"] == 0 and diff["other"] == 0, diff
+    assert diff["alpha"] <= 1e-6 and diff["xy"] <= 1e-9, diff
+
+
+@pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 3.7), (2, 1.2, 8.0)])
+def test_the_host_as_it_is_differs_only_where_its_nearest_piece_is_not(seed, blur, scale):
+    """The host measures pixels off the 8-neighbours to the nearest of 3 pieces: a few come out too far."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    idx = region_index(m, W, H)
+    b = Borders(m, W, H)
+    host = b.mix(idx)
+    dev = DeviceBorders(m, W, H).mix(idx)
+    diff = differences(host, dev, b, W)
+    assert diff["one_side"] + diff["other"] <= 0.002 * diff["n"], diff
+    assert diff["alpha_over"] <= 0.01 * diff["n"] and diff["alpha"] < 0.02, diff
+    assert diff["xy"] <= 1e-9, diff
+
+
+def test_sharp_borders_equal_the_host_as_it_is():
+    """Sharp borders mix only 8-neighbours of another region, measured to 8 pieces: the host finds the nearest."""
+    for seed, scale in ((3, 1.0), (4, 5.3)):
+        m = blob_model(seed=seed)
+        W, H = round(m.width * scale), round(m.height * scale)
+        idx = region_index(m, W, H)
+        b = Borders(m, W, H)
+        diff = differences(b.mix(idx), DeviceBorders(m, W, H).mix(idx), b, W)
+        assert diff["one_side"] == 0 and diff["other"] == 0 and diff["alpha"] <= 1e-6, diff
+
+
+@pytest.mark.parametrize("blur", [None, 1.2])
+def test_bands_are_the_frame(blur):
+    """A band's border pixels are the frame's: with host halo rows (as ``_bands`` has them) or rows of a frame map."""
+    from tpsv.gpu import warp
+
+    wp = warp()
+    m = blob_model(seed=5, blur=blur)
+    W, H = round(m.width * 4.0), round(m.height * 4.0)
+    idx = region_index(m, W, H)
+    db = DeviceBorders(m, W, H)
+    frame = db.mix(idx)
+    frame_d = wp.array(idx, dtype=wp.int32)
+    hr = db.halo
+    got = []
+    for y0 in range(0, H, 37):
+        y1 = min(y0 + 37, H)
+        halo = (idx[max(0, y0 - hr):y0] if y0 > 0 else None, idx[y1:min(H, y1 + hr)] if y1 < H else None)
+        band = db.mix(idx[y0:y1], y0, halo)
+        # the same band as a row range of the frame's map on the device
+        rows = db.mix_device(frame_d, 0, band=(y0, y1)).numpy()
+        for a, b in ((band, rows),):
+            assert np.array_equal(a.pixels, b.pixels) and np.array_equal(a.other, b.other)
+            assert np.array_equal(a.alpha, b.alpha) and np.array_equal(a.xy, b.xy)
+        got.append((band.pixels + y0 * W, band.other, band.alpha, band.xy))
+    pixels, other, alpha, xy = (np.concatenate(v) for v in zip(*got))
+    assert np.array_equal(pixels, frame.pixels) and np.array_equal(other, frame.other)
+    assert np.array_equal(alpha, frame.alpha) and np.array_equal(xy, frame.xy)
+
+
+def test_pixels_of_no_region_and_threads(monkeypatch):
+    """Pixels of no region (-1) never mix nor are mixed into; any split over host threads gives the same result."""
+    m = blob_model(seed=6, blur=0.8)
+    W, H = round(m.width * 3.0), round(m.height * 3.0)
+    idx = region_index(m, W, H)
+    idx[20:50, 30:70] = -1
+    idx[:, :3] = -1
+    exact_host(monkeypatch)
+    b = Borders(m, W, H)
+    host = b.mix(idx)
+    db = DeviceBorders(m, W, H)
+    one, two = db.mix(idx, threads=1), db.mix(idx, threads=2)
+    for f in ("pixels", "other", "alpha", "xy"):
+        assert np.array_equal(getattr(one, f), getattr(two, f))
+    diff = differences(host, one, b, W)
+    assert diff["one_side"] == 0 and diff["other"] == 0 and diff["alpha"] <= 1e-6, diff
+    assert (idx.reshape(-1)[one.pixels] >= 0).all() and (one.other >= 0).all()
+
+
+def test_device_result_and_no_borders():
+    """The device-side result downloads to the host one; a model of one region has no border pixels."""
+    from tpsv.gpu import warp
+
+    wp = warp()
+    m = blob_model(seed=7, blur=0.5)
+    W, H = 90, 70
+    idx = region_index(m, W, H)
+    db = DeviceBorders(m, W, H)
+    d = db.mix_device(wp.array(idx, dtype=wp.int32))
+    assert isinstance(d.pixels, wp.array) and d.xy.dtype == wp.vec2d and d.n == len(db.mix(idx).pixels)
+    assert np.array_equal(d.numpy().alpha, border_mix(m, idx).alpha)
+    assert np.array_equal(d.numpy().pixels, border_mix(m, wp.array(idx, dtype=wp.int32)).pixels)
+    one = blob_model(n=1)
+    assert len(one.regions) == 1
+    idx1 = region_index(one, 50, 40)
+    assert DeviceBorders(one, 50, 40).mix(idx1).pixels.size == 0
+    assert db.mix_device(wp.array(idx, dtype=wp.int32), 0, band=(10, 10)).n == 0
+    with pytest.raises(ValueError):
+        db.mix_device(wp.array(idx, dtype=wp.int32), 0, band=(10, 80))

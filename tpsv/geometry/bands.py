@@ -1,0 +1,62 @@
+"""Per-pixel work on a whole image, band of rows by band of rows.
+
+A per-pixel formula in float64 over a whole photo makes several temporaries
+of 24 bytes a pixel (``tpsv.color.srgb_to_lab`` holds about 150 bytes a pixel
+at its peak); run over bands of :data:`BAND_PIXELS` pixels, the same formula
+gives the same values with temporaries of a few megabytes.
+"""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import numpy as np
+
+from ..color import srgb_to_lab
+
+#: Pixels per band (whole rows; at least one row).
+BAND_PIXELS = 1 << 16
+
+
+def row_bands(height: int, width: int, pixels: int = BAND_PIXELS) -> Iterator[tuple[int, int]]:
+    """``(a, b)`` row ranges covering ``0 .. height``, each about ``pixels`` pixels (one row at least).
+
+    Parameters
+    ----------
+    height, width : int
+        Image size.
+    pixels : int
+        Pixels per band.
+
+    Yields
+    ------
+    (int, int)
+        Rows ``a <= y < b``.
+    """
+    rows = max(1, int(pixels) // max(int(width), 1))
+    for a in range(0, int(height), rows):
+        yield a, min(a + rows, int(height))
+
+
+def lab_image(rgb: np.ndarray, clip: bool = False) -> np.ndarray:
+    """``tpsv.color.srgb_to_lab`` of an (H, W, 3) image, computed in bands of rows (the same values).
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float
+        sRGB in ``[0, 1]``.
+    clip : bool
+        Clip to ``[0, 1]`` first (as ``srgb_to_lab(np.clip(rgb, 0, 1))``).
+
+    Returns
+    -------
+    ndarray (H, W, 3) float32
+    """
+    h, w = rgb.shape[:2]
+    out = np.empty((h, w, 3), np.float32)
+    for a, b in row_bands(h, w):
+        out[a:b] = srgb_to_lab(np.clip(rgb[a:b], 0, 1) if clip else rgb[a:b])
+    return out
+
+
+__all__ = ["BAND_PIXELS", "lab_image", "row_bands"]

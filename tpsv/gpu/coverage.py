@@ -1,0 +1,778 @@
+"""Anti-aliased border coverage on a Warp device: the twin of :class:`tpsv.rendering.borders.Borders`.
+
+Render step 5 (:mod:`tpsv.rendering.borders` says what is computed) with one
+code path for the ``cpu`` and ``cuda`` devices. :class:`DeviceBorders` is
+prepared once per model and output size: the outline pieces, cut as
+``Borders`` cuts them, sorted into a uniform grid of square cells and
+uploaded once, with (for blurred borders) a lower bound of every pixel's
+distance to them. :meth:`DeviceBorders.mix_device` then takes a region
+map already on the device, in four small launches and two prefix sums:
+
+1. one thread per :data:`GROUP` pixels of a row: which may mix? (sharp
+   borders: the pixels with an 8-neighbour of another region; blurred
+   ones: the pixels a piece may lie within their region's limit of);
+2. their flat indices, compacted by a prefix sum of the groups' counts;
+3. one thread per such pixel: the nearest piece (an exact search of the
+   grid, row of cells by row of cells), the region across
+   (``Borders._across``), the pair's edge width (``Borders._sigma``), the
+   coverage (``Borders._coverage``, Phi from ``wp.erf``, float64);
+4. the pixels that mix (``alpha < 1 - 1e-4``), compacted by a second prefix sum.
+
+Prefix sums keep the pixels in increasing flat index: the result is the
+same on every device and for every split of the CPU launches. The two
+counts are read back to size the outputs (on CUDA, two synchronisations).
+
+Where it differs from the host, on purpose:
+
+* the host measures a pixel to the nearest of the few pieces nearest by
+  midpoint (:data:`~tpsv.rendering.borders.NEAREST`; 3 for pixels beyond the
+  8-neighbours of a blurred border, where that is often not the nearest
+  piece: the distance comes out a few hundredths of a pixel long); here
+  the nearest piece is found exactly. Coverages of such pixels differ by
+  up to ~2e-3, rarely the region across or whether the pixel mixes;
+* for blurred borders the host looks at the pixels within ``reach + 1``
+  (chamfer distance) of an 8-neighbour pixel; here at every pixel that a
+  piece may lie within its region's limit of. A pixel mixes in both only
+  when a piece lies that near and the point beyond it is another region,
+  so the sets differ only where an outline runs over a pixel away from
+  where the region map changes;
+* a border that two regions share is in both outlines: the search keeps
+  one copy of each piece (the same points, to rounding).
+
+Geometry is float64 (pixel coordinates of large outputs need it for
+``1e-4`` px); alpha is float32, as on the host.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..rendering.borders import BorderMix, Borders, edge_widths, outline_pieces
+from . import resolve_device
+from . import warp as _warp
+from .rasterise import _BAND_MIN, _launch_banded
+
+wp.set_module_options({"enable_backward": False})
+
+#: Pixels per thread of the first pass (bits of a mask).
+GROUP = wp.constant(8)
+#: Cell side (pixels) of the bound on the pixels' distance to the pieces (blurred borders).
+APART_CELL = 3
+#: Most grid cells of one output (bounds the cell table: 4 bytes each).
+MAX_CELLS = 1 << 22
+#: Search cells per reach, for blurred borders (smaller cells: fewer pieces measured, more rows visited).
+CELLS_PER_REACH = 4.0
+#: Smallest search cell (pixels) by default.
+MIN_CELL = 3
+
+_INV_SQRT_2PI = wp.constant(wp.float64(1.0 / np.sqrt(2.0 * np.pi)))
+_INV_SQRT_2 = wp.constant(wp.float64(1.0 / np.sqrt(2.0)))
+# (a constant: an expression in a kernel would be float32)
+_MIXED = wp.constant(wp.float64(1.0 - 1e-4))
+
+
+@dataclass
+class PieceGrid:
+    """Outline pieces on the device, sorted by the grid cell of their midpoint, and what the kernels need besides.
+
+    Attributes
+    ----------
+    a, d : wp.array (n,) vec2d
+        Piece starts and vectors, output pixels.
+    start : wp.array (gw * gh + 1,) int32
+        First piece of each cell (row-major cells of ``cell x cell`` pixels).
+    apart : wp.array (ah * aw,) float32
+        No piece is nearer than this to a pixel centre of the cell (a grid
+        of its own: ``acell x acell`` pixels, ``aw`` a row; zeros for sharp borders).
+    limit : wp.array (R,) float64
+        A pixel of region ``r`` mixes only nearer than ``limit[r]`` to a piece.
+    gw, gh, cell : int
+        Grid size in cells, cell side in pixels.
+    aw, acell : int
+        The same for ``apart`` (width in cells, cell side).
+    slack : float
+        Half the longest piece: no point of a piece is nearer than its midpoint less this.
+    rows : int
+        Most rows of cells one search visits each side of the pixel's.
+    blurred : int
+        1 where ``reach > 1`` (pixels beyond the 8-neighbours mix).
+    keys : wp.array (m,) int64
+        Blurred region pairs ``a * n_regions + b`` (``a < b``), sorted.
+    sigma : wp.array (m,) float64
+        Their edge widths, output pixels.
+    n_regions : int
+    """
+
+    a: object
+    d: object
+    start: object
+    apart: object
+    limit: object
+    gw: int
+    gh: int
+    cell: int
+    aw: int
+    acell: int
+    slack: float
+    rows: int
+    blurred: int
+    keys: object
+    sigma: object
+    n_regions: int
+
+    def search(self) -> list:
+        """The arguments of :func:`_nearest`, in its order."""
+        return [self.a, self.d, self.start, self.gw, self.gh, self.cell, wp.float64(self.slack), self.rows]
+
+
+# --------------------------------------------------------------------------- per-pixel body
+
+
+@wp.func
+def _gap(v: wp.float64, i: int, cell: int):
+    """Distance from ``v`` to the band ``[i cell, (i + 1) cell)`` along one axis."""
+    lo = wp.float64(i * cell)
+    return wp.max(wp.max(lo - v, v - lo - wp.float64(cell)), wp.float64(0.0))
+
+
+@wp.func
+def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
+             gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64):
+    """Distance and foot of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else ``limit``).
+
+    Rows of cells outwards from the pixel's, alternately above and below; a
+    piece nearer than the best so far has its midpoint within ``best +
+    slack`` of the pixel, so each row is read only over the cells in that
+    circle (one run of pieces: cells are row-major and pieces sorted by
+    cell), and the search stops at the first rows wholly outside it.
+    """
+    cy = wp.min(y / cell, gh - 1)
+    px = wp.float64(x) + wp.float64(0.5)
+    py = wp.float64(y) + wp.float64(0.5)
+    best = limit
+    best2 = limit * limit  # compared squared: no root per piece
+    bmid2 = wp.float64(1e300)
+    fx = px
+    fy = py
+    for j in range(rows):
+        if wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best:
+            break
+        for side in range(2):
+            row = cy - j
+            if side == 1:
+                row = cy + j
+            gy = _gap(py, row, cell)
+            if row >= 0 and row < gh and (side == 0 or j > 0) and gy - slack < best:
+                r = best + slack
+                half = wp.sqrt(wp.max(r * r - gy * gy, wp.float64(0.0)))
+                x0 = wp.clamp(int(wp.floor((px - half) / wp.float64(cell))), 0, gw - 1)
+                x1 = wp.clamp(int(wp.floor((px + half) / wp.float64(cell))), 0, gw - 1)
+                found = int(0)
+                for n in range(start[row * gw + x0], start[row * gw + x1 + 1]):
+                    p0 = a[n]
+                    dv = d[n]
+                    wx = px - p0[0]
+                    wy = py - p0[1]
+                    # the host's expression (Borders._nearest), in its order
+                    u = (wx * dv[0] + wy * dv[1]) / wp.max(dv[0] * dv[0] + dv[1] * dv[1], wp.float64(1e-300))
+                    u = wp.clamp(u, wp.float64(0.0), wp.float64(1.0))
+                    qx = p0[0] + u * dv[0]
+                    qy = p0[1] + u * dv[1]
+                    ox = px - qx
+                    oy = py - qy
+                    d2 = ox * ox + oy * oy
+                    if d2 <= best2:
+                        # on a tie (a pixel centre as near two pieces) the piece whose middle is nearer
+                        mx = wx - wp.float64(0.5) * dv[0]
+                        my = wy - wp.float64(0.5) * dv[1]
+                        m2 = mx * mx + my * my
+                        if d2 < best2 or m2 < bmid2:
+                            best2 = d2
+                            bmid2 = m2
+                            fx = qx
+                            fy = qy
+                            found = 1
+                if found != 0:
+                    best = wp.sqrt(best2)
+    return best, fx, fy
+
+
+@wp.func
+def _region(index: wp.array2d(dtype=wp.int32), r: int, x: int):
+    """Region at local row ``r``, column ``x``; rows and columns beyond the map repeat its edge."""
+    return index[wp.clamp(r, 0, index.shape[0] - 1), wp.clamp(x, 0, index.shape[1] - 1)]
+
+
+@wp.func
+def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: int, px: wp.float64,
+            py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64):
+    """Region just beyond the pixel's nearest outline, else its nearest 8-neighbour of another region (-1: none)."""
+    # a little beyond the foot of the perpendicular (the mirror image for pixels on the outline)
+    qx = wp.float64(2.0) * fx - px
+    qy = wp.float64(2.0) * fy - py
+    if dist > wp.float64(0.75):
+        m = wp.max(dist, wp.float64(1e-9))
+        qx = fx + wp.float64(0.75) * ((fx - px) / m)
+        qy = fy + wp.float64(0.75) * ((fy - py) / m)
+    other = _region(index, int(wp.floor(qy)) - iy0, int(wp.floor(qx)))
+    if other != mine and other >= 0:
+        return other
+    # the point beyond fell in the pixel's own region (an outline corner): the 8-neighbour
+    # of another region whose centre is nearest that point, in the host's order on ties
+    best = wp.float64(1e300)
+    pick = int(-1)
+    for n in range(8):
+        dy = 0
+        dx = 0
+        if n == 0:
+            dy = -1
+        elif n == 1:
+            dy = 1
+        elif n == 2:
+            dx = -1
+        elif n == 3:
+            dx = 1
+        elif n == 4:
+            dy = -1
+            dx = -1
+        elif n == 5:
+            dy = -1
+            dx = 1
+        elif n == 6:
+            dy = 1
+            dx = -1
+        else:
+            dy = 1
+            dx = 1
+        r = _region(index, y + dy - iy0, x + dx)
+        ex = wp.float64(x + dx) + wp.float64(0.5) - qx
+        ey = wp.float64(y + dy) + wp.float64(0.5) - qy
+        dd = wp.sqrt(ex * ex + ey * ey)
+        if r != mine and r >= 0 and dd < best:
+            best = dd
+            pick = r
+    return pick
+
+
+@wp.func
+def _sigma(keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int, a: int, b: int):
+    """Edge width (output px) of the border between regions ``a`` and ``b`` (0: sharp)."""
+    m = keys.shape[0]
+    key = wp.int64(wp.min(a, b)) * wp.int64(n_regions) + wp.int64(wp.max(a, b))
+    lo = int(0)
+    hi = m
+    while lo < hi:
+        mid = (lo + hi) / 2
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < m:
+        if keys[lo] == key:
+            return sigma[lo]
+    return wp.float64(0.0)
+
+
+@wp.func
+def _F(x: wp.float64, s: wp.float64):
+    """``x Phi(x / s) + s phi(x / s)``: the integral of the Gaussian-blurred unit step."""
+    z = x / s
+    phi = wp.exp(wp.float64(-0.5) * z * z) * _INV_SQRT_2PI
+    Phi = wp.float64(0.5) * (wp.float64(1.0) + wp.erf(z * _INV_SQRT_2))
+    return x * Phi + s * phi
+
+
+@wp.func
+def _coverage(d: wp.float64, sigma: wp.float64):
+    """Share of the pixel its own region covers (``Borders._coverage``)."""
+    if sigma > wp.float64(1e-3):
+        return _F(d + wp.float64(0.5), sigma) - _F(d - wp.float64(0.5), sigma)
+    return wp.min(wp.float64(1.0), wp.float64(0.5) + d)
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@wp.func
+def _next_to_other(index: wp.array2d(dtype=wp.int32), r: int, x: int, mine: int):
+    """Whether pixel ``(x, r)`` has an 8-neighbour of another region (not -1); beyond the map its edge repeats."""
+    c = int(0)
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            nb = _region(index, r + dy, x + dx)
+            if nb != mine and nb >= 0:
+                c = 1
+    return c
+
+
+@wp.func
+def _column(index: wp.array2d(dtype=wp.int32), ra: int, r: int, rb: int, x: int):
+    """Least and greatest region of rows ``ra, r, rb`` at column ``x``."""
+    u = index[ra, x]
+    v = index[r, x]
+    w = index[rb, x]
+    return wp.min(wp.min(u, v), w), wp.max(wp.max(u, v), w)
+
+
+@wp.kernel
+def _candidates(apart: wp.array(dtype=wp.float32), limit: wp.array(dtype=wp.float64), aw: int, acell: int,
+                blurred: int, index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, mask: wp.array(dtype=wp.int32),
+                count: wp.array(dtype=wp.int32)):
+    """Which of a group of :data:`GROUP` pixels of row ``y0 + i`` may mix (bit mask) and how many.
+
+    A pixel of a blurred border may mix when a piece may lie within its
+    region's limit; one of a sharp border when an 8-neighbour belongs to
+    another region: read from the least and greatest region of its 3 x 3
+    block (sliding column extremes), the full test only next to pixels of
+    no region.
+    """
+    yy, gi = wp.tid()
+    y = y0 + yy
+    r = y - iy0
+    h = index.shape[0]
+    W = index.shape[1]
+    x0 = gi * GROUP
+    x1 = wp.min(x0 + GROUP, W)
+    m = int(0)
+    n = int(0)
+    if blurred != 0:
+        row = (y / acell) * aw
+        for x in range(x0, x1):
+            mine = index[r, x]
+            if mine >= 0:
+                if apart[row + x / acell] < wp.float32(limit[mine]):
+                    m = m | (1 << (x - x0))
+                    n = n + 1
+    else:
+        ra = wp.max(r - 1, 0)
+        rb = wp.min(r + 1, h - 1)
+        lo0, hi0 = _column(index, ra, r, rb, wp.max(x0 - 1, 0))
+        lo1, hi1 = _column(index, ra, r, rb, x0)
+        for x in range(x0, x1):
+            lo2, hi2 = _column(index, ra, r, rb, wp.min(x + 1, W - 1))
+            mine = index[r, x]
+            if mine >= 0:
+                lo = wp.min(wp.min(lo0, lo1), lo2)
+                hi = wp.max(wp.max(hi0, hi1), hi2)
+                c = int(0)
+                if hi > mine:
+                    c = 1
+                elif lo >= 0:
+                    if lo < mine:
+                        c = 1
+                else:
+                    c = _next_to_other(index, r, x, mine)
+                if c != 0:
+                    m = m | (1 << (x - x0))
+                    n = n + 1
+            lo0 = lo1
+            hi0 = hi1
+            lo1 = lo2
+            hi1 = hi2
+    mask[yy * ((W + GROUP - 1) / GROUP) + gi] = m
+    count[yy * ((W + GROUP - 1) / GROUP) + gi] = n
+
+
+@wp.kernel
+def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), offs: wp.array(dtype=wp.int32),
+            g0: int, W: int, out: wp.array(dtype=wp.int32)):
+    """Flat index of each pixel a group's mask names, at its place in the prefix sum of the counts."""
+    i = wp.tid()
+    m = mask[i]
+    if m != 0:
+        groups = (W + GROUP - 1) / GROUP
+        g = g0 + i
+        yy = g / groups
+        x0 = (g - yy * groups) * GROUP
+        k = offs[i] - count[i]
+        for b in range(GROUP):
+            if (m & (1 << b)) != 0:
+                out[k] = yy * W + x0 + b
+                k = k + 1
+
+
+@wp.kernel
+def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
+             gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
+             keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
+             index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
+             keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32)):
+    """Each candidate: nearest piece, region across, coverage; ``keep`` 1 where it mixes."""
+    i = wp.tid()
+    W = index.shape[1]
+    p = cand[i]
+    yy = p / W
+    x = p - yy * W
+    y = y0 + yy
+    keep[i] = 0
+    mine = index[y - iy0, x]
+    lim = limit[mine]
+    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim)
+    if dist < lim:
+        px = wp.float64(x) + wp.float64(0.5)
+        py = wp.float64(y) + wp.float64(0.5)
+        o = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
+        if o >= 0:
+            s = _coverage(dist, _sigma(keys, sigma, n_regions, mine, o))
+            if s < _MIXED:
+                keep[i] = 1
+                other[i] = o
+                alpha[i] = wp.float32(s)
+
+
+@wp.kernel
+def _compact(cand: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32), offs: wp.array(dtype=wp.int32),
+             other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32), W: int, y0: int, kx: wp.float64,
+             ky: wp.float64, pixels_out: wp.array(dtype=wp.int32), other_out: wp.array(dtype=wp.int32),
+             alpha_out: wp.array(dtype=wp.float32), xy_out: wp.array(dtype=wp.vec2d)):
+    i = wp.tid()
+    if keep[i] != 0:
+        j = offs[i] - 1
+        p = cand[i]
+        yy = p / W
+        x = p - yy * W
+        pixels_out[j] = p
+        other_out[j] = other[i]
+        alpha_out[j] = alpha[i]
+        xy_out[j] = wp.vec2d((wp.float64(x) + wp.float64(0.5)) / kx,
+                             (wp.float64(y0 + yy) + wp.float64(0.5)) / ky)
+
+
+# --------------------------------------------------------------------------- host side
+
+
+def _limits(keys: np.ndarray, sigma: np.ndarray, n_regions: int, reach: float) -> np.ndarray:
+    """Per region, a distance from its border beyond which none of its pixels mixes (at most ``reach``).
+
+    Coverage grows with the distance and shrinks with the edge width, so a
+    pixel of region ``r`` mixes (``alpha < 1 - 1e-4``) only nearer than where
+    the widest of ``r``'s borders reaches ``1 - 1e-4`` (by bisection, plus a
+    margin of 1e-6 px for rounding).
+    """
+    widest = np.zeros(n_regions)
+    if keys.size:
+        np.maximum.at(widest, keys // n_regions, sigma)
+        np.maximum.at(widest, keys % n_regions, sigma)
+    lo = np.zeros(n_regions)
+    hi = np.full(n_regions, reach + 1.0)
+    for _ in range(50):  # to ~1e-14 px
+        mid = 0.5 * (lo + hi)
+        mixes = Borders._coverage(mid, widest) < 1.0 - 1e-4
+        lo = np.where(mixes, mid, lo)
+        hi = np.where(mixes, hi, mid)
+    return np.minimum(hi + 1e-6, reach)
+
+
+def _apart(mid: np.ndarray, slack: float, width: int, height: int):
+    """A lower bound of every pixel's distance to the pieces, per cell of :data:`APART_CELL` pixels.
+
+    The exact distance between the cell's centre and the nearest centre of
+    a cell holding a midpoint, less a half-diagonal each side and half a
+    piece (and 1e-3 px for rounding).
+
+    Returns
+    -------
+    acell, aw, ah : int
+        Cell side, grid width and height in cells.
+    apart : ndarray (ah, aw) float32
+    """
+    import cv2
+
+    acell = max(APART_CELL, int(np.ceil(np.sqrt(width * height / MAX_CELLS))))
+    aw, ah = -(-width // acell), -(-height // acell)
+    empty = np.ones((ah, aw), np.uint8)
+    empty[np.clip(np.floor(mid[:, 1] / acell), 0, ah - 1).astype(np.int64),
+          np.clip(np.floor(mid[:, 0] / acell), 0, aw - 1).astype(np.int64)] = 0
+    dist = cv2.distanceTransform(empty, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64) * acell
+    return acell, aw, ah, np.maximum(dist - acell * np.sqrt(2.0) - slack - 1e-3, 0.0).astype(np.float32)
+
+
+def _one_of_each(a: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pieces less the second copy of each border that two regions share (the same piece, run backwards).
+
+    Both copies are the same points to within rounding, so the nearest foot
+    (and all that follows from it) is the same; the search reads half as many.
+    """
+    if not len(a):
+        return a, d
+    b = a + d
+    # endpoints in a fixed order, rounded (1e-7 px): a pair that rounds apart just stays twice
+    fwd = (a[:, 0] < b[:, 0]) | ((a[:, 0] == b[:, 0]) & (a[:, 1] <= b[:, 1]))
+    lo = np.where(fwd[:, None], a, b)
+    hi = np.where(fwd[:, None], b, a)
+    key = np.ascontiguousarray(np.round(np.hstack([lo, hi]) * 1e7).astype(np.int64))
+    _, first = np.unique(key.view(np.dtype((np.void, 32))).ravel(), return_index=True)
+    first.sort()
+    return a[first], d[first]
+
+
+@dataclass
+class DeviceBorderMix:
+    """:class:`~tpsv.rendering.borders.BorderMix` on the device: the border pixels of a band, in increasing order.
+
+    Attributes
+    ----------
+    pixels : wp.array (n,) int32
+        Flat indices ``y * W + x`` into the band.
+    other : wp.array (n,) int32
+        Region across the border.
+    alpha : wp.array (n,) float32
+        Coverage of the pixel's own region.
+    xy : wp.array (n,) vec2d
+        Pixel centres in the model's pixel space.
+    """
+
+    pixels: object
+    other: object
+    alpha: object
+    xy: object
+
+    @property
+    def n(self) -> int:
+        return int(self.pixels.shape[0])
+
+    def numpy(self) -> BorderMix:
+        """Download: the host :class:`BorderMix`."""
+        if self.n == 0:
+            return BorderMix.none()
+        return BorderMix(pixels=self.pixels.numpy().copy(), other=self.other.numpy().copy(),
+                         alpha=self.alpha.numpy().copy(), xy=self.xy.numpy().reshape(-1, 2).astype(np.float64))
+
+
+class DeviceBorders:
+    """Every outline of a model as short pieces in a grid of cells on a Warp device, for one output size.
+
+    The device twin of :class:`tpsv.rendering.borders.Borders` (same pieces,
+    same :attr:`reach_px` and :attr:`halo`).
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int
+        Output size.
+    device : str
+        Warp device (``cpu``, ``cuda``, ``cuda:N``).
+    cell : int, optional
+        Side of the search grid's cells, output pixels (default: a quarter
+        of the reach, at least :data:`MIN_CELL`; larger where the grid
+        would pass :data:`MAX_CELLS`). Results do not depend on it.
+    """
+
+    def __init__(self, model, width: int, height: int, device: str = "cpu", cell: int | None = None):
+        _warp()
+        self.device = resolve_device(device)
+        self.width, self.height = int(width), int(height)
+        self.kx = self.width / float(model.width)
+        self.ky = self.height / float(model.height)
+        nr = max(len(model.regions), 1)
+        keys, sigma = edge_widths(model, self.kx, self.ky)
+        #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
+        self.reach_px = 0.5 + 3.0 * float(sigma.max(initial=0.0))
+        self.halo = int(np.ceil(self.reach_px)) + 1
+        a, d = outline_pieces(model, self.width, self.height)
+        a, d = _one_of_each(a, d)
+        self.n_pieces = len(a)
+        if not len(a):
+            self.grid = None
+            return
+        # cells of about a quarter of the reach, a few pixels at least (a small table to build), few enough to hold
+        if cell is None:
+            cell = max(MIN_CELL, self.reach_px / CELLS_PER_REACH)
+        cell = max(1, int(round(cell)), int(np.ceil(np.sqrt(self.width * self.height / MAX_CELLS))))
+        gw = -(-self.width // cell)
+        gh = -(-self.height // cell)
+        mid = a + 0.5 * d
+        # a midpoint off the grid goes to the nearest cell: no nearer to any pixel than it really is
+        cx = np.clip(np.floor(mid[:, 0] / cell), 0, gw - 1).astype(np.int64)
+        cy = np.clip(np.floor(mid[:, 1] / cell), 0, gh - 1).astype(np.int64)
+        c = cy * gw + cx
+        order = np.argsort(c, kind="stable")
+        count = np.bincount(c, minlength=gw * gh)
+        start = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
+        slack = 0.5 * float(np.hypot(*d.T).max())
+        # (sharp borders: only 8-neighbours of another region mix, all of them next to a piece)
+        acell, aw, ah = 1, 1, 1
+        apart = np.zeros(1, np.float32)
+        if self.reach_px > 1.0:
+            acell, aw, ah, apart = _apart(mid, slack, self.width, self.height)
+
+        def up(v, dtype):
+            return wp.array(np.ascontiguousarray(v), dtype=dtype, device=self.device)
+
+        g = PieceGrid(a=up(a[order], wp.vec2d), d=up(d[order], wp.vec2d), start=up(start, wp.int32),
+                      apart=up(apart.ravel(), wp.float32), limit=up(_limits(keys, sigma, nr, self.reach_px), wp.float64),
+                      gw=gw, gh=gh, cell=cell, aw=aw, acell=acell, slack=slack,
+                      rows=int(np.ceil((self.reach_px + slack) / cell)) + 2, blurred=int(self.reach_px > 1.0),
+                      keys=up(keys, wp.int64), sigma=up(sigma.astype(np.float64), wp.float64), n_regions=nr)
+        self.grid = g
+        self.cell = cell
+        self.grid_shape = (gh, gw)
+
+    def _empty(self) -> DeviceBorderMix:
+        dev = self.device
+        return DeviceBorderMix(wp.zeros(0, dtype=wp.int32, device=dev), wp.zeros(0, dtype=wp.int32, device=dev),
+                               wp.zeros(0, dtype=wp.float32, device=dev), wp.zeros(0, dtype=wp.vec2d, device=dev))
+
+    def _with_halo(self, index_d, halo):
+        """``index_d`` with the host rows ``halo = (above, below)`` joined on the device; rows above."""
+        up, down = halo
+        W = index_d.shape[1]
+        parts = [np.zeros((0, W), np.int32) if h is None else np.ascontiguousarray(h, np.int32).reshape(-1, W)
+                 for h in (up, down)]
+        top, bottom = parts[0].shape[0], parts[1].shape[0]
+        if top + bottom == 0:
+            return index_d, 0
+        h = index_d.shape[0]
+        ext = wp.empty((top + h + bottom, W), dtype=wp.int32, device=self.device)
+        if top:
+            wp.copy(ext, wp.array(parts[0], dtype=wp.int32, device=self.device), 0, 0, top * W)
+        wp.copy(ext, index_d, top * W, 0, h * W)
+        if bottom:
+            wp.copy(ext, wp.array(parts[1], dtype=wp.int32, device=self.device), (top + h) * W, 0, bottom * W)
+        return ext, top
+
+    def mix_device(self, index_d, y0: int = 0, band: tuple[int, int] | None = None,
+                   halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+                   threads: int | None = None) -> DeviceBorderMix:
+        """The border pixels of a band of output rows and their coverage, left on the device.
+
+        Parameters
+        ----------
+        index_d : wp.array2d (h, W) int32
+            Region of every pixel of output rows ``y0 .. y0 + h`` (``region_index``
+            rows), contiguous, on this object's device: the whole frame, or a
+            band with the rows around it that it reaches.
+        y0 : int
+            Output row of ``index_d``'s first row.
+        band : (a, b), optional
+            Output rows ``a <= y < b`` whose border pixels are wanted (default:
+            every row of ``index_d``). The other rows of ``index_d`` are the
+            halo: a band's border pixels are the whole frame's when
+            :attr:`halo` rows each side are there (or the frame ends).
+        halo : (rows above, rows below), optional
+            Host region rows just outside ``index_d`` (``(k, W)`` arrays or
+            None), as :meth:`Borders.mix <tpsv.rendering.borders.Borders.mix>`
+            takes them; joined to ``index_d`` on the device.
+        threads : int, optional
+            Host threads on the CPU device.
+
+        Returns
+        -------
+        DeviceBorderMix
+            Pixels in increasing order, flat indices into the band.
+        """
+        h, W = int(index_d.shape[0]), int(index_d.shape[1])
+        a, b = (y0, y0 + h) if band is None else (int(band[0]), int(band[1]))
+        if not (y0 <= a <= b <= y0 + h):
+            raise ValueError(f"band {a}..{b} is not within rows {y0}..{y0 + h} of the region map")
+        if W != self.width:
+            raise ValueError(f"region map is {W} px wide, the borders were prepared for {self.width}")
+        g = self.grid
+        if g is None or a == b:
+            return self._empty()
+        index_d, top = self._with_halo(index_d, halo)
+        iy0 = y0 - top
+        dev = self.device
+        groups = -(-W // int(GROUP))
+        n = (b - a) * groups
+        mask = wp.empty(n, dtype=wp.int32, device=dev)
+        count = wp.empty(n, dtype=wp.int32, device=dev)
+
+        def launch_rows(r0, r1):
+            wp.launch(_candidates, dim=(r1 - r0, groups), inputs=[g.apart, g.limit, g.aw, g.acell, g.blurred, index_d, iy0,
+                                                                 a + r0, mask[r0 * groups:r1 * groups],
+                                                                 count[r0 * groups:r1 * groups]], device=dev)
+
+        _launch_banded(_candidates, b - a, (b - a) * W >= _BAND_MIN, dev, threads, launch_rows)
+        offs = wp.empty(n, dtype=wp.int32, device=dev)
+        wp.utils.array_scan(count, offs, inclusive=True)
+        nc = int(offs[n - 1:].numpy()[0])
+        if nc == 0:
+            return self._empty()
+        cand = wp.empty(nc, dtype=wp.int32, device=dev)
+
+        def launch_gather(i0, i1):
+            wp.launch(_gather, dim=i1 - i0, inputs=[mask[i0:i1], count[i0:i1], offs[i0:i1], i0, W, cand], device=dev)
+
+        _launch_banded(_gather, n, n >= _BAND_MIN, dev, threads, launch_gather)
+        del mask, count, offs
+        keep = wp.empty(nc, dtype=wp.int32, device=dev)
+        other = wp.empty(nc, dtype=wp.int32, device=dev)
+        alpha = wp.empty(nc, dtype=wp.float32, device=dev)
+
+        def launch_measure(i0, i1):
+            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.keys, g.sigma, g.n_regions, index_d, iy0, a,
+                                                     cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1]], device=dev)
+
+        _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
+        koffs = wp.empty(nc, dtype=wp.int32, device=dev)
+        wp.utils.array_scan(keep, koffs, inclusive=True)
+        nk = int(koffs[nc - 1:].numpy()[0])
+        if nk == 0:
+            return self._empty()
+        out = DeviceBorderMix(wp.empty(nk, dtype=wp.int32, device=dev), wp.empty(nk, dtype=wp.int32, device=dev),
+                              wp.empty(nk, dtype=wp.float32, device=dev), wp.empty(nk, dtype=wp.vec2d, device=dev))
+
+        def launch_compact(i0, i1):
+            wp.launch(_compact, dim=i1 - i0, inputs=[cand[i0:i1], keep[i0:i1], koffs[i0:i1], other[i0:i1], alpha[i0:i1],
+                                                     W, a, wp.float64(self.kx), wp.float64(self.ky), out.pixels,
+                                                     out.other, out.alpha, out.xy], device=dev)
+
+        _launch_banded(_compact, nc, nc >= _BAND_MIN, dev, threads, launch_compact)
+        return out
+
+    def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+            threads: int | None = None) -> BorderMix:
+        """:meth:`Borders.mix <tpsv.rendering.borders.Borders.mix>` from host rows: upload, :meth:`mix_device`, download.
+
+        Parameters
+        ----------
+        index : ndarray (h, W) int32
+            Region of every pixel of the band.
+        y0 : int
+            Output row of ``index``'s first row.
+        halo : (rows above, rows below)
+            As :meth:`Borders.mix <tpsv.rendering.borders.Borders.mix>`.
+        threads : int, optional
+            Host threads on the CPU device.
+
+        Returns
+        -------
+        BorderMix
+            Pixels in increasing order.
+        """
+        index = np.ascontiguousarray(index, np.int32)
+        if index.size == 0 or self.grid is None:
+            return BorderMix.none()
+        index_d = wp.array(index, dtype=wp.int32, device=self.device)
+        return self.mix_device(index_d, y0, None, halo, threads).numpy()
+
+
+def border_mix(model, index, device: str = "cpu", threads: int | None = None) -> BorderMix:
+    """The anti-aliased border pixels of a whole frame: ``Borders(model, W, H).mix(index)`` on a Warp device.
+
+    Parameters
+    ----------
+    model : Model
+    index : ndarray or wp.array2d (H, W) int32
+        Region of every output pixel (``region_index``); a device array
+        stays where it is.
+    device : str
+    threads : int, optional
+        Host threads on the CPU device.
+
+    Returns
+    -------
+    BorderMix
+    """
+    H, W = int(index.shape[0]), int(index.shape[1])
+    db = DeviceBorders(model, W, H, device)
+    if isinstance(index, wp.array):
+        return db.mix_device(index, threads=threads).numpy()
+    return db.mix(index, threads=threads)
+
+
+__all__ = ["DeviceBorderMix", "DeviceBorders", "PieceGrid", "border_mix"]
