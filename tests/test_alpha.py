@@ -176,3 +176,35 @@ def test_translucency_away_from_an_edge_is_refused():
         encode_quality(rgb, None, quality=10, alpha=glass)
     with pytest.raises(TpsvError, match="partly transparent"):
         alpha_mod.transparent_mask(np.full_like(a, 0.5))
+
+
+def test_the_command_line_keeps_a_logo_transparent(tmp_path):
+    import json
+
+    import cv2
+    from click.testing import CliRunner
+
+    from tpsv.cli import main
+
+    rgb, a = logo()
+    rgba = np.dstack([rgb, a])
+    cv2.imwrite(str(tmp_path / "logo.png"), cv2.cvtColor(to_uint8(rgba), cv2.COLOR_RGBA2BGRA))
+    run = CliRunner().invoke
+    r = run(main, ["vectorize", str(tmp_path / "logo.png"), "-o", str(tmp_path / "logo.tpsv"), "--quality", "60"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(run(main, ["info", str(tmp_path / "logo.tpsv"), "--json"]).stdout)
+    assert len(info["transparent"]) == 1
+    for scale in (1, 8):
+        out = tmp_path / f"x{scale}.png"
+        assert run(main, ["render", str(tmp_path / "logo.tpsv"), "-o", str(out), "--scale", str(scale)]).exit_code == 0
+        img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+        n = SIZE * scale
+        assert img.shape == (n, n, 4)
+        assert img[0, 0, 3] == 0 and img[n - 1, n - 1, 3] == 0 and img[19 * scale, 20 * scale, 3] == 255
+    # JPEG has no alpha: the picture over white
+    assert run(main, ["render", str(tmp_path / "logo.tpsv"), "-o", str(tmp_path / "x.jpg")]).exit_code == 0
+    jpg = cv2.imread(str(tmp_path / "x.jpg"), cv2.IMREAD_UNCHANGED)
+    assert jpg.shape == (SIZE, SIZE, 3) and jpg[0, 0].min() >= 250
+    # the other readers of photos say why they refuse it
+    r = run(main, ["segment", str(tmp_path / "logo.png"), "-o", str(tmp_path / "l.png")])
+    assert r.exit_code == 1 and "vectorize keeps transparency" in r.output

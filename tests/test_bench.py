@@ -138,3 +138,16 @@ def test_device_table_reports_end_to_end_per_size():
         assert 0 < r["device_ms"] < r["end_to_end_ms"] and r["max_abs_diff_vs_cpu"] == 0.0
     text = device_table_text([{"name": "blobs", "device_check": d}], "cpu")
     assert "e2e" in text and "96x72" in text
+
+
+def test_scaling_table_measures_each_size_in_a_child(small_rgb):
+    from tpsv.bench.scaling import scaling_table, scaling_text
+
+    t = scaling_table(small_rgb, sizes=(48, 64))
+    assert [r["size"] for r in t["rows"]] == [48, 64]
+    for r in t["rows"]:
+        assert r["seconds"] > 0 and r["file_bytes"] > 0 and r["psnr"] > 15
+        # a child's peak holds the interpreter, the libraries and Warp at least
+        assert r["peak_rss_bytes"] >= 0.5 * t["baseline_rss_bytes"] > 10 * 2**20
+        assert r["bytes_per_pixel"] == r["peak_rss_bytes"] / r["pixels"]
+    assert "64x64" in scaling_text(t).replace(" ", "")

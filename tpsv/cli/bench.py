@@ -86,10 +86,13 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
               help="Also compare detail-texture codecs (own DCT, WebP, AVIF colour, AVIF planes) on each image.")
 @click.option("--rd/--no-rd", default=True, show_default=True,
               help="The rate-distortion table: tpsv --quality sweep with and without detail, JPEG, WebP, BD-PSNR.")
+@click.option("--scaling", is_flag=True, default=False,
+              help="Also vectorize the first image resized to 512, 1024 and 2048 px square, each in a child "
+                   "process: seconds and peak memory (a few minutes on a laptop).")
 @device_option
 @json_option
 @click.pass_context
-def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, rd, device, as_json):
+def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, rd, scaling, device, as_json):
     """Benchmark IMAGES (default: the bundled samples, with their label maps).
 
     An IMAGE may also be a .tpsv file: then only its timing tables are made.
@@ -121,6 +124,13 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
                 name: detail_codec_table(read_image(path), read_labels(lab, shape=read_image(path).shape[:2])
                                          if lab else None, device=device)
                 for name, path, lab, model in inputs if not model}
+        if scaling:
+            from ..bench.scaling import scaling_table
+
+            first = next((path for _, path, _, model in inputs if not model), None)
+            if first is None:
+                raise TpsvError("--scaling needs a raster image among the inputs")
+            report["scaling"] = scaling_table(read_image(first), device=device)
         if out_dir:
             out.write(Path(out_dir) / "bench.json", json.dumps(report, indent=2, default=float).encode())
             for r in results:
@@ -135,5 +145,9 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
 
             for name, table in report["detail_codecs"].items():
                 click.echo("\n" + detail_codec_text(name, table))
+        if scaling:
+            from ..bench.scaling import scaling_text
+
+            click.echo("\n" + scaling_text(report["scaling"]))
         if out_dir:
             say(ctx, f"wrote {out_dir}/bench.json and rate-distortion plots")
