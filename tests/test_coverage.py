@@ -194,3 +194,22 @@ def test_device_result_and_no_borders():
     assert db.mix_device(wp.array(idx, dtype=wp.int32), 0, band=(10, 10)).n == 0
     with pytest.raises(ValueError):
         db.mix_device(wp.array(idx, dtype=wp.int32), 0, band=(10, 80))
+
+
+def test_outlines_folded_over_a_small_canvas_go_to_the_host_search():
+    # a long zig-zag hole in a 12x10 canvas: thousands of outline pieces per output pixel
+    m = blob_model(w=12, h=10, n=2, seed=3)
+    zig = np.array([[2.0 + 8.0 * (i % 2), 2.0 + 6.0 * i / 3999] for i in range(4000)])
+    m.regions[0].outline = [m.regions[0].outline[0], np.vstack([zig, zig[::-1][1:-1] + [0.01, 0.0]])]
+    W, H = 12, 10
+    db = DeviceBorders(m, W, H)
+    assert db.n_pieces > 16 * W * H and db.grid is None
+    index = region_index(m, W, H)
+    host = Borders(m, W, H).mix(index)
+    dev = db.mix(index)
+    assert np.array_equal(host.pixels, dev.pixels) and np.array_equal(host.other, dev.other)
+    assert np.array_equal(host.alpha, dev.alpha)
+    # bands through the same path
+    top = db.mix(index[:5], 0, (None, index[5:]))
+    low = db.mix(index[5:], 5, (index[:5], None))
+    assert np.array_equal(np.concatenate([top.pixels, low.pixels + 5 * W]), host.pixels)

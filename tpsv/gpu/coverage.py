@@ -71,6 +71,10 @@ MIN_CELL = 3
 _INV_SQRT_2PI = wp.constant(wp.float64(1.0 / np.sqrt(2.0 * np.pi)))
 _INV_SQRT_2 = wp.constant(wp.float64(1.0 / np.sqrt(2.0)))
 # (a constant: an expression in a kernel would be float32)
+#: Outline pieces per output pixel beyond which the host reference's k-d tree finds the nearest ones
+#: faster than the device's exact search (real models: well under 1; a hostile file folding a long
+#: outline into a small canvas: thousands).
+DENSE_PIECES = 16
 _MIXED = wp.constant(wp.float64(1.0 - 1e-4))
 
 
@@ -573,6 +577,13 @@ class DeviceBorders:
         self.reach_px = 0.5 + 3.0 * float(sigma.max(initial=0.0))
         self.halo = int(np.ceil(self.reach_px)) + 1
         a, d = outline_pieces(model, self.width, self.height)
+        self._host = None
+        if len(a) > DENSE_PIECES * self.width * self.height:
+            # outlines folded over a few pixels (a hostile or degenerate file): an exact search
+            # would visit thousands of pieces per pixel, the host's k-d tree a few
+            self._host = Borders(model, self.width, self.height)
+            self.n_pieces, self.grid = len(a), None
+            return
         a, d = _one_of_each(a, d)
         self.n_pieces = len(a)
         if not len(a):
@@ -670,6 +681,8 @@ class DeviceBorders:
             raise ValueError(f"band {a}..{b} is not within rows {y0}..{y0 + h} of the region map")
         if W != self.width:
             raise ValueError(f"region map is {W} px wide, the borders were prepared for {self.width}")
+        if self._host is not None:
+            return self._host_mix(index_d, y0, a, b, halo)
         g = self.grid
         if g is None or a == b:
             return self._empty()
@@ -724,6 +737,26 @@ class DeviceBorders:
         _launch_banded(_compact, nc, nc >= _BAND_MIN, dev, threads, launch_compact)
         return out
 
+    def _host_mix(self, index_d, y0: int, a: int, b: int, halo) -> DeviceBorderMix:
+        """:meth:`mix_device` by the host reference (outlines too dense for the device search)."""
+        if a == b:
+            return self._empty()
+        rows = index_d.numpy()
+        up, down = halo
+        above = rows[:a - y0] if up is None else np.vstack([np.asarray(up, np.int32).reshape(-1, self.width),
+                                                             rows[:a - y0]])
+        below = rows[b - y0:] if down is None else np.vstack([rows[b - y0:],
+                                                               np.asarray(down, np.int32).reshape(-1, self.width)])
+        mix = self._host.mix(rows[a - y0:b - y0], a, (above if len(above) else None, below if len(below) else None))
+        if mix.pixels.size == 0:
+            return self._empty()
+
+        def up_(v, dtype):
+            return wp.array(np.ascontiguousarray(v), dtype=dtype, device=self.device)
+
+        return DeviceBorderMix(up_(mix.pixels, wp.int32), up_(mix.other, wp.int32), up_(mix.alpha, wp.float32),
+                               up_(mix.xy, wp.vec2d))
+
     def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
             threads: int | None = None) -> BorderMix:
         """:meth:`Borders.mix <tpsv.rendering.borders.Borders.mix>` from host rows: upload, :meth:`mix_device`, download.
@@ -745,7 +778,7 @@ class DeviceBorders:
             Pixels in increasing order.
         """
         index = np.ascontiguousarray(index, np.int32)
-        if index.size == 0 or self.grid is None:
+        if index.size == 0 or (self.grid is None and self._host is None):
             return BorderMix.none()
         index_d = wp.array(index, dtype=wp.int32, device=self.device)
         return self.mix_device(index_d, y0, None, halo, threads).numpy()

@@ -1,0 +1,364 @@
+"""The region of every output pixel on a Warp device: render step 1, the twin of ``pixelmap.region_index``.
+
+:class:`DeviceOutlines` is prepared once per model and output size: every
+edge of every outline, in its region's own frame exactly as
+:class:`tpsv.geometry.outline.Coverage` prepares it (the same object does
+the arithmetic, so the crossings are the same float64 values), binned by the
+bands of :data:`BAND` output rows it crosses and uploaded once.
+:meth:`DeviceOutlines.index_device` then fills any band of rows in two
+launches:
+
+1. one thread per row (:func:`_fill_rows`): the crossings of the row with
+   every edge of its band (``xa + (y - ya) (xb - xa) / (yb - ya)``, the
+   host's expression in its order; FMA contraction is off so CUDA rounds as
+   numpy does), runs of one region sorted by ``x`` and paired (even-odd),
+   each span ``[ceil(xl), ceil(xr))`` clipped to its region's box, regions in
+   drawing order, the first to reach a pixel keeping it. These pixels are
+   exactly those of ``Coverage.rows``.
+2. one thread per pixel (:func:`_fill_gaps`): a pixel no polygon covers
+   takes the region of the covered pixel nearest in the metric of OpenCV's
+   5x5 chamfer distance transform (the one ``rasterize_regions`` runs),
+   searched ring by ring out to :data:`SEARCH` pixels; on equal distances
+   the candidate first in raster order wins. OpenCV's two passes break such
+   ties by scan order instead, so a few gap pixels per frame (where two
+   regions are exactly as near) may get the other region. A pixel with no
+   covered pixel within :data:`SEARCH` (huge holes between outlines) is
+   filled on the host by ``outline.GapFill``, exactly as the host does.
+
+The result on every device and for every split of the CPU launches is the
+same, and a band of rows equals those rows of the whole frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..errors import TpsvError
+from ..geometry import outline
+from ..rendering.pixelmap import draw_order
+from . import resolve_device
+from . import warp as _warp
+from .rasterise import _BAND_MIN, _launch_banded
+
+# fuse_fp off: the crossing x must round as numpy's (no FMA), or edge pixels could flip on CUDA
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
+
+#: Output rows per bin of edges.
+BAND = 8
+#: Farthest (Chebyshev, output pixels) the device looks for a covered pixel from an uncovered one.
+SEARCH = 32
+
+_HV = wp.constant(wp.int64(outline._HV))
+_DIAG = wp.constant(wp.int64(outline._DIAG))
+_LONG = wp.constant(wp.int64(outline._LONG))
+_FAR = wp.constant(wp.int64(1 << 62))
+_AFTER = wp.constant(wp.int64(1 << 50))
+#: Written by the gap kernel where no covered pixel lies within SEARCH.
+UNRESOLVED = wp.constant(-2)
+
+
+@wp.kernel
+def _fill_rows(
+    xa: wp.array(dtype=wp.float64),
+    ya: wp.array(dtype=wp.float64),
+    xb: wp.array(dtype=wp.float64),
+    yb: wp.array(dtype=wp.float64),
+    ereg: wp.array(dtype=wp.int32),
+    g0: wp.array(dtype=wp.int32),
+    g1: wp.array(dtype=wp.int32),
+    bstart: wp.array(dtype=wp.int32),
+    bedge: wp.array(dtype=wp.int32),
+    rx0: wp.array(dtype=wp.int32),
+    ry0: wp.array(dtype=wp.int32),
+    rw: wp.array(dtype=wp.int32),
+    lut: wp.array(dtype=wp.int32),
+    rowstart: wp.array(dtype=wp.int64),
+    xs: wp.array(dtype=wp.float64),
+    rs: wp.array(dtype=wp.int32),
+    band: int,
+    row0: int,
+    out_row0: int,
+    out: wp.array2d(dtype=wp.int32),
+    n_gap: wp.array(dtype=wp.int32),
+):
+    """Row ``row0 + tid`` of the coverage (``-1``: no polygon) into ``out[row0 + tid - out_row0]``, its uncovered pixels counted."""
+    y = row0 + wp.tid()
+    orow = y - out_row0
+    width = out.shape[1]
+    for c in range(width):
+        out[orow, c] = -1
+    o0 = rowstart[y]
+    n = int(0)
+    b = y / band
+    # bins hold edges in drawing order of their region: the row's crossings come out grouped by region
+    for k in range(bstart[b], bstart[b + 1]):
+        e = bedge[k]
+        if g0[e] <= y and y < g1[e]:
+            r = ereg[e]
+            local = wp.float64(y - ry0[r])
+            xs[o0 + wp.int64(n)] = xa[e] + (local - ya[e]) * (xb[e] - xa[e]) / (yb[e] - ya[e])
+            rs[o0 + wp.int64(n)] = r
+            n += 1
+    claimed = int(0)
+    i = int(0)
+    while i < n:
+        r = rs[o0 + wp.int64(i)]
+        j = i + 1
+        while j < n and rs[o0 + wp.int64(j)] == r:
+            j += 1
+        # insertion sort of the region's crossings (a few per row)
+        for p in range(i + 1, j):
+            v = xs[o0 + wp.int64(p)]
+            q = p - 1
+            while q >= i and xs[o0 + wp.int64(q)] > v:
+                xs[o0 + wp.int64(q + 1)] = xs[o0 + wp.int64(q)]
+                q -= 1
+            xs[o0 + wp.int64(q + 1)] = v
+        wr = wp.float64(rw[r])
+        x0 = rx0[r]
+        lab = lut[r]
+        p = i
+        while p + 1 < j:
+            cl = int(wp.clamp(wp.ceil(xs[o0 + wp.int64(p)]), wp.float64(0.0), wr)) + x0
+            cr = int(wp.clamp(wp.ceil(xs[o0 + wp.int64(p + 1)]), wp.float64(0.0), wr)) + x0
+            for c in range(cl, cr):
+                if out[orow, c] < 0:
+                    out[orow, c] = lab
+                    claimed += 1
+            p += 2
+        i = j
+    n_gap[orow] = width - claimed
+
+
+@wp.func
+def _chamfer(dx: int, dy: int):
+    """OpenCV's 5x5 chamfer distance over ``(dx, dy)`` (1/65536 px)."""
+    m = wp.max(wp.abs(dx), wp.abs(dy))
+    n = wp.min(wp.abs(dx), wp.abs(dy))
+    if 2 * n <= m:
+        return wp.int64(n) * _LONG + wp.int64(m - 2 * n) * _HV
+    return wp.int64(m - n) * _LONG + wp.int64(2 * n - m) * _DIAG
+
+
+@wp.func
+def _nearest(cov: wp.array2d(dtype=wp.int32), cov_row0: int, height: int, y: int, x: int, search: int):
+    """Region of the covered pixel nearest ``(x, y)`` in the chamfer metric (:data:`UNRESOLVED`: none within ``search``)."""
+    width = cov.shape[1]
+    best = _FAR
+    bkey = _FAR
+    lab = int(UNRESOLVED)
+    for rad in range(1, search + 1):
+        # a pixel ``rad`` rings out is at least rad * HV away
+        if wp.int64(rad) * _HV > best:
+            break
+        for dy in range(-rad, rad + 1):
+            qy = y + dy
+            if qy >= 0 and qy < height:
+                step = 1
+                if dy != -rad and dy != rad:
+                    step = 2 * rad
+                dx = -rad
+                while dx <= rad:
+                    qx = x + dx
+                    if qx >= 0 and qx < width:
+                        w = cov[qy - cov_row0, qx]
+                        if w >= 0:
+                            d = _chamfer(dx, dy)
+                            # ties as OpenCV's two passes break them (see the module docstring)
+                            key = wp.int64(dy) * wp.int64(width) + wp.int64(dx)
+                            if not ((dy < 0 and dx <= -2 * dy) or (dy == 0 and dx < 0)):
+                                key = _AFTER - key
+                            if d < best or (d == best and key < bkey):
+                                best = d
+                                bkey = key
+                                lab = w
+                    dx += step
+    return lab
+
+
+@wp.kernel
+def _find_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), height: int,
+               row0: int, search: int, found: wp.array2d(dtype=wp.int32), unresolved: wp.array(dtype=wp.int32)):
+    """The region of every uncovered pixel of row ``row0 + tid`` into ``found`` (same row and column)."""
+    y = row0 + wp.tid()
+    r = y - cov_row0
+    if n_gap[r] == 0:
+        return
+    for x in range(cov.shape[1]):
+        if cov[r, x] < 0:
+            lab = _nearest(cov, cov_row0, height, y, x, search)
+            found[r, x] = lab
+            if lab == UNRESOLVED:
+                unresolved[0] = 1
+
+
+@wp.kernel
+def _put_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), row0: int,
+              found: wp.array2d(dtype=wp.int32)):
+    """Write ``found`` into the uncovered pixels of row ``row0 + tid`` (after every search has read them)."""
+    r = row0 + wp.tid() - cov_row0
+    if n_gap[r] == 0:
+        return
+    for x in range(cov.shape[1]):
+        if cov[r, x] < 0:
+            cov[r, x] = found[r, x]
+
+
+class DeviceOutlines:
+    """A model's outlines on a Warp device, for the region map at one output size.
+
+    Parameters
+    ----------
+    model : Model
+    width, height : int
+        Output size.
+    device : str
+        Warp device (``cpu``, ``cuda``, ``cuda:N``).
+    threads : int, optional
+        Host threads for the CPU device (None: every core).
+
+    Raises
+    ------
+    TpsvError
+        Empty output, an invalid draw order or outline (as ``region_index``).
+    """
+
+    def __init__(self, model, width: int, height: int, device: str = "cpu", threads: int | None = None):
+        _warp()
+        self.device = resolve_device(device)
+        self.threads = threads
+        self.width, self.height = int(width), int(height)
+        order = draw_order(model)
+        regions = [model.regions[r] for r in order]
+        # the host's own preparation: the same edges, boxes and float64 values
+        self.coverage = cov = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
+        self._lut_host = np.asarray(order + [-1], np.int32)
+        self._gaps = None
+        self.n_regions = len(order)
+        if cov.empty:
+            return
+        H = self.height
+        g0 = cov._g0.astype(np.int64)
+        g1 = cov._g1.astype(np.int64)
+        ne = g0.size
+        if ne >= 2**31:
+            raise TpsvError(f"outline too complex: {ne} edges")
+        # crossings per row -> offsets of each row's scratch
+        per_row = np.cumsum(np.bincount(g0, minlength=H + 1)[:H + 1] - np.bincount(g1, minlength=H + 1)[:H + 1])[:H]
+        rowstart = np.zeros(H + 1, np.int64)
+        np.cumsum(per_row, out=rowstart[1:])
+        # bins of BAND rows: edge e lies in bins g0 // BAND .. (g1 - 1) // BAND, in edge (drawing) order
+        b0 = g0 // BAND
+        nbin = (g1 - 1) // BAND - b0 + 1
+        tot = int(nbin.sum())
+        e = np.repeat(np.arange(ne, dtype=np.int64), nbin)
+        bins = np.repeat(b0 - (np.cumsum(nbin) - nbin), nbin) + np.arange(tot)
+        order_e = np.argsort(bins, kind="stable")
+        nb = (H + BAND - 1) // BAND
+        bstart = np.zeros(nb + 1, np.int64)
+        np.cumsum(np.bincount(bins, minlength=nb)[:nb], out=bstart[1:])
+        if tot >= 2**31:
+            raise TpsvError(f"outline too complex: {tot} edge bins")
+        dev = self.device
+        f64 = lambda a: wp.array(np.ascontiguousarray(a, np.float64), dtype=wp.float64, device=dev)  # noqa: E731
+        i32 = lambda a: wp.array(np.ascontiguousarray(a, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
+        self._arrays = [
+            f64(cov._xa), f64(cov._ya), f64(cov._xb), f64(cov._yb), i32(cov._reg), i32(g0), i32(g1),
+            i32(bstart), i32(e[order_e]), i32(cov._x0), i32(cov._y0), i32(cov._w), i32(self._lut_host),
+            wp.array(rowstart, dtype=wp.int64, device=dev),
+        ]
+        n_cross = int(rowstart[-1])
+        self._xs = wp.empty(max(n_cross, 1), dtype=wp.float64, device=dev)
+        self._rs = wp.empty(max(n_cross, 1), dtype=wp.int32, device=dev)
+
+    def coverage_device(self, y0: int = 0, y1: int | None = None) -> wp.array:
+        """Rows ``y0 <= y < y1`` of the coverage: region index, ``-1`` where no polygon covers the pixel.
+
+        Returns
+        -------
+        wp.array2d(int32) (y1 - y0, width)
+        """
+        y0, y1 = self._rows(y0, y1)
+        return self._coverage(y0, y1)[0]
+
+    def _coverage(self, y0, y1):
+        dev, W = self.device, self.width
+        out = wp.empty((y1 - y0, W), dtype=wp.int32, device=dev)
+        n_gap = wp.empty(y1 - y0, dtype=wp.int32, device=dev)
+        if self.coverage.empty:
+            out.fill_(-1)
+            n_gap.fill_(W)
+            return out, n_gap
+
+        def launch(a, b):
+            wp.launch(_fill_rows, dim=b - a,
+                      inputs=self._arrays + [self._xs, self._rs, BAND, y0 + a, y0, out, n_gap], device=dev)
+
+        _launch_banded(_fill_rows, y1 - y0, (y1 - y0) * W >= _BAND_MIN, dev, self.threads, launch)
+        return out, n_gap
+
+    def index_device(self, y0: int = 0, y1: int | None = None) -> wp.array:
+        """Rows ``y0 <= y < y1`` of ``pixelmap.region_index`` on the device.
+
+        Parameters
+        ----------
+        y0, y1 : int
+            Band of output rows (default: the whole frame).
+
+        Returns
+        -------
+        wp.array2d(int32) (y1 - y0, width)
+            Region index of every pixel (``-1`` only when the model has no region).
+        """
+        y0, y1 = self._rows(y0, y1)
+        dev, W, H = self.device, self.width, self.height
+        if self.coverage.empty:
+            out = wp.empty((y1 - y0, W), dtype=wp.int32, device=dev)
+            out.fill_(int(self._lut_host[0]) if self.n_regions else -1)
+            return out
+        # the gaps of the band read covered pixels up to SEARCH rows beyond it
+        c0, c1 = max(y0 - SEARCH, 0), min(y1 + SEARCH, H)
+        cov, n_gap = self._coverage(c0, c1)
+        found = wp.empty_like(cov)  # only the uncovered pixels are written and read
+        unresolved = wp.zeros(1, dtype=wp.int32, device=dev)
+        large = (y1 - y0) * W >= _BAND_MIN
+
+        def find(a, b):
+            wp.launch(_find_gaps, dim=b - a, inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, unresolved], device=dev)
+
+        def put(a, b):
+            wp.launch(_put_gaps, dim=b - a, inputs=[cov, c0, n_gap, y0 + a, found], device=dev)
+
+        _launch_banded(_find_gaps, y1 - y0, large, dev, self.threads, find)
+        _launch_banded(_put_gaps, y1 - y0, large, dev, self.threads, put)
+        out = cov[y0 - c0:y1 - c0]
+        # one int read back: whether any pixel needs the host (none within SEARCH px of a covered one)
+        if int(unresolved.numpy()[0]):
+            out = self._resolve(out, y0)
+        return out
+
+    def index(self, y0: int = 0, y1: int | None = None) -> np.ndarray:
+        """:meth:`index_device` copied to the host: ndarray (y1 - y0, width) int32."""
+        return self.index_device(y0, y1).numpy()
+
+    def _rows(self, y0, y1):
+        y0 = int(y0)
+        y1 = self.height if y1 is None else int(y1)
+        if not 0 <= y0 < y1 <= self.height:
+            raise TpsvError(f"rows {y0}..{y1} are not a band of the {self.height}-row output")
+        return y0, y1
+
+    def _resolve(self, out, y0):
+        """Fill the pixels the device left unresolved exactly as the host does (``outline.GapFill``)."""
+        if self._gaps is None:
+            self._gaps = outline.GapFill(self.coverage, band_rows=256)
+        idx = out.numpy()
+        miss = idx == UNRESOLVED
+        host = np.full(idx.shape, -1, np.int32)
+        self._gaps.apply(host, y0)
+        idx[miss] = self._lut_host[host[miss]]
+        return wp.array(idx, dtype=wp.int32, device=self.device)
+
+
+__all__ = ["BAND", "DeviceOutlines", "SEARCH"]
