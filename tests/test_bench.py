@@ -136,6 +136,7 @@ def test_device_table_reports_end_to_end_per_size():
         st = r["stages_ms"]
         assert r["end_to_end_ms"] == pytest.approx(st["total"] - st["download"])
         assert 0 < r["device_ms"] < r["end_to_end_ms"] and r["max_abs_diff_vs_cpu"] == 0.0
+        assert r["prepared_ms"] > 0
     text = device_table_text([{"name": "blobs", "device_check": d}], "cpu")
     assert "e2e" in text and "96x72" in text
 

@@ -329,3 +329,12 @@ def test_each_entry_module_imports_first(module):
 
     r = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
+
+
+def test_a_prepared_renderer_adds_the_detail_as_render_does(textured):
+    from tpsv.rendering.raster import Renderer
+
+    model = codec.decode(textured.data)
+    r = Renderer(model)
+    for scale in (1, 2.5):
+        assert np.array_equal(r.render(scale=scale), render(model, scale=scale))

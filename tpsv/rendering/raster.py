@@ -457,3 +457,69 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
     if opaque is not None:
         img = np.dstack([img, opaque])
     return img, (watch.times if timed else {})
+
+
+class Renderer:
+    """A model prepared once for rendering on a device, then rendered at any size.
+
+    What does not depend on the output size is done here, once: the features
+    grouped into kernels, the kernels uploaded and solved, the detail texture
+    uploaded. Each :meth:`render` then does only the per-size work (region
+    map, inverse patch map, border coverage, rasterise, border mix, detail),
+    so a viewer that zooms, or a batch that renders one model at several
+    sizes, pays the preparation once. The pixels are :func:`render`'s.
+
+    Parameters
+    ----------
+    model : Model
+        Not copied: do not change it while the renderer is in use.
+    device : str
+        Warp device.
+    threads : int, optional
+        Host threads for CPU launches.
+    clamp : bool
+        As :func:`render`.
+
+    Examples
+    --------
+    >>> r = Renderer(model, device="cuda")                        # doctest: +SKIP
+    >>> frame = r.render(1920, 1080, keep_on_device=True)         # doctest: +SKIP
+    >>> big = r.render(scale=4)                                   # doctest: +SKIP
+    """
+
+    def __init__(self, model, device: str = "cpu", threads=None, clamp: bool = True):
+        from ..gpu import tps as gtps
+
+        self.model = model
+        self.device = resolve_device(device)
+        self.threads = threads
+        self.clamp = bool(clamp)
+        self.kernels = tps.group_kernels(model)
+        self._dk = gtps.solve(gtps.upload(self.kernels, self.device), threads=threads)
+        self._dd = device_detail(model, self.device)
+
+    def render(self, width=None, height=None, scale=None, antialias: bool = True, alpha: bool = False,
+               keep_on_device: bool = False):
+        """The render at ``width x height`` or ``scale``, as :func:`render` (outputs of at most
+        :data:`ONE_PIECE_PIXELS`; ``keep_on_device``: the frame on the device, RGB only)."""
+        from ..gpu import tps as gtps
+        from ..gpu.coverage import DeviceBorders
+
+        model = self.model
+        W, H = output_size(model, width, height, scale)
+        if W * H > ONE_PIECE_PIXELS:
+            raise TpsvError(f"output {W}x{H} px is rendered in bands: use render_bands or render_png")
+        if keep_on_device and alpha:
+            raise TpsvError("keep_on_device renders RGB frames; alpha is on the host")
+        pm = pixel_map(model, W, H, self.device)
+        mix = None
+        if antialias:
+            mix = DeviceBorders(model, W, H, self.device).mix_device(pm.index_d, threads=self.threads).numpy()
+        opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
+        out = gtps.rasterise(self._dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
+        _mix_borders(model, self._dk, out, mix, self.threads, self.clamp)
+        _add_detail(model, out, pm.index_d, pm.st_d, self.device, self.threads, self._dd)
+        if keep_on_device:
+            return out
+        img = out.numpy().reshape(H, W, 3)
+        return img if opaque is None else np.dstack([img, opaque])
