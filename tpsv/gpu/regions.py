@@ -285,6 +285,14 @@ class DeviceOutlines:
     ------
     TpsvError
         Empty output, an invalid draw order or outline (as ``region_index``).
+
+    Notes
+    -----
+    Device memory: the edges (44 bytes each, plus 4 per bin they cross),
+    12 bytes per edge crossing of the whole frame (scratch, one slot per
+    row) and, once gaps are filled, one int32 per pixel. Calls for disjoint
+    bands may run at once; calls for the same rows may not (they share the
+    scratch).
     """
 
     def __init__(self, model, width: int, height: int, device: str = "cpu", threads: int | None = None):

@@ -113,19 +113,26 @@ class PixelMap:
 
     Attributes
     ----------
-    index : ndarray (H, W) int32
-        Region of every pixel (``-1``: outside every region).
     index_d : wp.array2d(int32)
-        ``index`` on the device.
+        Region of every pixel on the device (``-1``: outside every region).
     st_d : wp.array2d(vec2)
         Normalised ``(S, T)`` of every pixel in its region's patch, on the
         device (``(-1, -1)`` outside every region).
+    index : ndarray (H, W) int32
+        ``index_d`` on the host (copied on first use when the map was made
+        on the device).
     """
 
-    index: np.ndarray
     index_d: object
     st_d: object
+    _index: np.ndarray | None = field(default=None, repr=False)
     _st: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def index(self) -> np.ndarray:
+        if self._index is None:
+            self._index = self.index_d.numpy()
+        return self._index
 
     @property
     def st(self) -> np.ndarray:
@@ -165,7 +172,7 @@ class PixelMap:
         tick("upload_regions")
         st_d = inverse_map([r.patch for r in regions], index_d, src_size, device=device)
         tick("patchmap")
-        return cls(index=index, index_d=index_d, st_d=st_d)
+        return cls(index_d=index_d, st_d=st_d, _index=index)
 
 
 def pixel_map(model, width: int | None = None, height: int | None = None, device: str = "cpu",
@@ -187,11 +194,17 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
     -------
     PixelMap
     """
+    from ..gpu.patchmap import inverse_map
+    from ..gpu.regions import DeviceOutlines
+
     W = model.width if width is None else int(width)
     H = model.height if height is None else int(height)
-    index = region_index(model, W, H)
+    # the region map made on the device (the pixels of region_index), never uploaded
+    index_d = DeviceOutlines(model, W, H, device).index_device()
     tick("regions")
-    return PixelMap.build(model.regions, index, (model.width, model.height), device, tick)
+    st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)
+    tick("patchmap")
+    return PixelMap(index_d=index_d, st_d=st_d)
 
 
 class BandMaps:
@@ -249,7 +262,7 @@ class BandMaps:
         # the whole frame's kernel with a row offset: the same sample points and code
         st = inverse_map(None, index_d, self._src, patch_set=self.patch_set,
                          out_size=(self.width, self.height), row0=a)
-        return PixelMap(index=idx, index_d=index_d, st_d=st)
+        return PixelMap(index_d=index_d, st_d=st, _index=idx)
 
 
 __all__ = ["BandMaps", "FRONT_KEY", "PixelMap", "draw_order", "no_tick", "pixel_map", "region_index"]
