@@ -306,7 +306,7 @@ def test_fit_sees_the_rendered_pixels_of_a_deformed_model(smooth_model):
 
 def test_a_renderer_prepared_once_renders_as_render_at_every_size(smooth_model):
     r = render.Renderer(smooth_model)
-    for kwargs in ({"scale": 1}, {"scale": 2.5}, {"width": 37, "height": 101}, {"scale": 3, "antialias": False}):
+    for kwargs in ({"scale": 1}, {"scale": 2.5}, {"scale": 2.5}, {"width": 37, "height": 101}, {"scale": 3, "antialias": False}):
         assert np.array_equal(r.render(**kwargs), render.render(smooth_model, **kwargs)), kwargs
     frame = r.render(scale=2, keep_on_device=True)
     assert np.array_equal(frame.numpy().reshape(96, 128, 3), render.render(smooth_model, scale=2))

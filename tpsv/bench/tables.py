@@ -163,10 +163,10 @@ def device_table(model: Model, device: str, sizes=DEVICE_SIZES, repeat: int = 10
     ``end_to_end_ms`` is every stage from a loaded model to the image in device
     memory (host stages and uploads included, the download not: a viewer keeps
     the frame on the GPU, ``render(..., keep_on_device=True)``);
-    ``device_ms`` the device stages alone; ``prepared_ms`` a render by a
-    :class:`~tpsv.rendering.raster.Renderer` (kernels grouped, uploaded and
-    solved once per model) into device memory, what a viewer pays per frame
-    size.
+    ``device_ms`` the device stages alone; ``prepared_ms`` a frame by a
+    :class:`~tpsv.rendering.raster.Renderer` into device memory once the
+    model (kernels) and the size (outlines, border pieces) are prepared:
+    what a viewer pays per frame.
     """
     import time
 
@@ -456,7 +456,7 @@ def device_table_text(results: list[dict], device: str) -> str:
     out.append("    coverage, region map and kernel upload, kernel grouping); 'device' is the sum of the")
     out.append("    device stages (inverse patch map, build/solve, rasterise, border mix, detail); 'e2e' every")
     out.append("    stage from a loaded model to the image in device memory (the download not included);")
-    out.append("    'prep.' the same by a Renderer that grouped, uploaded and solved the kernels once")
+    out.append("    'prep.' a frame by a Renderer once the model's kernels and the size's outlines are prepared")
     return "\n".join(out)
 
 

@@ -176,7 +176,7 @@ class PixelMap:
 
 
 def pixel_map(model, width: int | None = None, height: int | None = None, device: str = "cpu",
-              tick: Callable[[str], None] = no_tick) -> PixelMap:
+              tick: Callable[[str], None] = no_tick, outlines=None) -> PixelMap:
     """The pixel map of ``model`` at ``width x height`` (default: the model's size, scale 1).
 
     Parameters
@@ -187,8 +187,9 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
     device : str
         Warp device.
     tick : callable(str), optional
-        Called with ``"regions"``, ``"upload_regions"`` and ``"patchmap"``
-        after each stage.
+        Called with ``"regions"`` and ``"patchmap"`` after each stage.
+    outlines : tpsv.gpu.regions.DeviceOutlines, optional
+        The model's outlines already prepared on ``device`` for this size.
 
     Returns
     -------
@@ -200,7 +201,9 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
     W = model.width if width is None else int(width)
     H = model.height if height is None else int(height)
     # the region map made on the device (the pixels of region_index), never uploaded
-    index_d = DeviceOutlines(model, W, H, device).index_device()
+    if outlines is None:
+        outlines = DeviceOutlines(model, W, H, device)
+    index_d = outlines.index_device()
     tick("regions")
     st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)
     tick("patchmap")

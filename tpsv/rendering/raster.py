@@ -467,7 +467,9 @@ class Renderer:
     uploaded. Each :meth:`render` then does only the per-size work (region
     map, inverse patch map, border coverage, rasterise, border mix, detail),
     so a viewer that zooms, or a batch that renders one model at several
-    sizes, pays the preparation once. The pixels are :func:`render`'s.
+    sizes, pays the preparation once; the outlines and border pieces prepared
+    for the last output size are kept, so frames of one size (a viewer's
+    window) pay only the device stages. The pixels are :func:`render`'s.
 
     Parameters
     ----------
@@ -497,13 +499,23 @@ class Renderer:
         self.kernels = tps.group_kernels(model)
         self._dk = gtps.solve(gtps.upload(self.kernels, self.device), threads=threads)
         self._dd = device_detail(model, self.device)
+        self._size = None  # (W, H, DeviceOutlines, DeviceBorders) of the last size rendered
+
+    def _prepared(self, W: int, H: int):
+        from ..gpu.coverage import DeviceBorders
+        from ..gpu.regions import DeviceOutlines
+
+        if self._size is None or self._size[:2] != (W, H):
+            self._size = None  # the old size's device arrays go before the new ones come
+            self._size = (W, H, DeviceOutlines(self.model, W, H, self.device, self.threads),
+                          DeviceBorders(self.model, W, H, self.device))
+        return self._size[2:]
 
     def render(self, width=None, height=None, scale=None, antialias: bool = True, alpha: bool = False,
                keep_on_device: bool = False):
         """The render at ``width x height`` or ``scale``, as :func:`render` (outputs of at most
         :data:`ONE_PIECE_PIXELS`; ``keep_on_device``: the frame on the device, RGB only)."""
         from ..gpu import tps as gtps
-        from ..gpu.coverage import DeviceBorders
 
         model = self.model
         W, H = output_size(model, width, height, scale)
@@ -511,10 +523,11 @@ class Renderer:
             raise TpsvError(f"output {W}x{H} px is rendered in bands: use render_bands or render_png")
         if keep_on_device and alpha:
             raise TpsvError("keep_on_device renders RGB frames; alpha is on the host")
-        pm = pixel_map(model, W, H, self.device)
+        outlines, borders = self._prepared(W, H)
+        pm = pixel_map(model, W, H, self.device, outlines=outlines)
         mix = None
         if antialias:
-            mix = DeviceBorders(model, W, H, self.device).mix_device(pm.index_d, threads=self.threads).numpy()
+            mix = borders.mix_device(pm.index_d, threads=self.threads).numpy()
         opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
         out = gtps.rasterise(self._dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
         _mix_borders(model, self._dk, out, mix, self.threads, self.clamp)
