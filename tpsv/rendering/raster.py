@@ -1,8 +1,8 @@
 """Model -> pixels at any size (paper V and VII-A).
 
 1-2. :func:`tpsv.rendering.pixelmap.pixel_map`: the region and the ``(S, T)`` of
-   every output pixel (outline rasterisation in drawing order, then the
-   inverse patch map).
+   every output pixel (outline rasterisation in drawing order on the device,
+   :mod:`tpsv.gpu.regions`, then the inverse patch map).
 3. ``tps.group_kernels``: sub-patch kernels (derived at load time).
 4. ``gpu.tps``: build + solve every kernel, then rasterise with the blend;
    by default each kernel is clamped to its features' Lab range before
@@ -141,7 +141,7 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
     transparent regions (``Region.transparent``), 1 elsewhere, and along a
     border with a transparent region the opaque side's coverage, that side's
     colour unmixed (:func:`opacity`). Without it a transparent region shows
-    as the backdrop its RGBA input was flattened onto (``tpsv.encode.alpha``).
+    its fill, the mean colour along its edge (``tpsv.encode.alpha.straight``).
     ``keep_on_device``: return the frame where it was rendered, a ``(H, W)``
     ``wp.array`` of ``wp.vec3f`` on ``device`` (the same values, not copied
     to the host), for a viewer or an encoder that goes on working on the
