@@ -418,8 +418,44 @@ def inverse_points(patches, region, xy, device: str = "cpu", t_loc: float = 0.00
     n = xy.shape[0]
     if n == 0:
         return np.zeros((0, 2), np.float32)
-    out = wp.empty(n, dtype=wp.vec2, device=device)
     reg_d = wp.array(region, dtype=wp.int32, device=device)
     xy_d = wp.array(xy, dtype=wp.vec2, device=device)
-    wp.launch(_points_kernel, dim=n, inputs=[ps.arrays, _search(t_loc, n_itr, newton), reg_d, xy_d, out], device=device)
-    return out.numpy().reshape(n, 2)
+    return inverse_points_device(ps, reg_d, xy_d, t_loc, n_itr, newton).numpy().reshape(n, 2)
+
+
+@wp.kernel
+def _to_vec2f(src: wp.array(dtype=wp.vec2d), dst: wp.array(dtype=wp.vec2)):
+    i = wp.tid()
+    dst[i] = wp.vec2(wp.float32(src[i][0]), wp.float32(src[i][1]))
+
+
+def inverse_points_device(patch_set: PatchSet, region, xy, t_loc: float = 0.001, n_itr: int = 8,
+                          newton: int = 12) -> wp.array:
+    """:func:`inverse_points` of points already on the device; the result stays there.
+
+    Parameters
+    ----------
+    patch_set : PatchSet
+    region : wp.array (n,) int32
+    xy : wp.array (n,) vec2 or vec2d
+        Points in model pixels (float64 points are rounded to float32, as
+        :func:`inverse_points` rounds them).
+    t_loc, n_itr, newton
+        As :func:`inverse_map`.
+
+    Returns
+    -------
+    wp.array (n,) vec2
+    """
+    device = patch_set.device
+    n = int(region.shape[0])
+    if xy.dtype == wp.vec2d:
+        single = wp.empty(n, dtype=wp.vec2, device=device)
+        if n:
+            wp.launch(_to_vec2f, dim=n, inputs=[xy, single], device=device)
+        xy = single
+    out = wp.empty(n, dtype=wp.vec2, device=device)
+    if n:
+        wp.launch(_points_kernel, dim=n, inputs=[patch_set.arrays, _search(t_loc, n_itr, newton), region, xy, out],
+                  device=device)
+    return out

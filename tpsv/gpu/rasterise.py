@@ -423,11 +423,21 @@ def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threa
     if n == 0:
         return out
     dev = dk.device
-    W = out.shape[1]
     pix_d = wp.array(np.ascontiguousarray(pixels, np.int32).reshape(-1), dtype=wp.int32, device=dev)
     oth_d = wp.array(np.ascontiguousarray(other, np.int32).reshape(-1), dtype=wp.int32, device=dev)
     st_d = wp.array(np.ascontiguousarray(st, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=dev)
     al_d = wp.array(np.ascontiguousarray(alpha, np.float32).reshape(-1), dtype=wp.float32, device=dev)
+    return mix_border_device(dk, out, pix_d, oth_d, st_d, al_d, threads, clamp)
+
+
+def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, threads: int | None = None,
+                      clamp: bool = True) -> wp.array:
+    """:func:`mix_border` of border pixels already on the device (``int32``, ``int32``, ``vec2f``, ``float32``)."""
+    n = int(pix_d.shape[0])
+    if n == 0:
+        return out
+    dev = dk.device
+    W = out.shape[1]
 
     def launch(a, b):
         wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, pix_d[a:b], oth_d[a:b], st_d[a:b], al_d[a:b], int(W),

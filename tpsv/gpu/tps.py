@@ -22,6 +22,7 @@ from .rasterise import (
     device_weights,
     eval_points,
     mix_border,
+    mix_border_device,
     rasterise,
     rasterise_pixels,
     render_arrays,
@@ -32,6 +33,6 @@ from .solve import FULL_SOLVE_FRACTION, coefficients, solve, solve_reusing, subs
 __all__ = [
     "DeviceKernels", "upload",
     "solve", "solve_reusing", "subset_kernels", "coefficients", "FULL_SOLVE_FRACTION",
-    "rasterise", "rasterise_pixels", "mix_border", "eval_points", "device_weights", "render_arrays", "render_timed",
+    "rasterise", "rasterise_pixels", "mix_border", "mix_border_device", "eval_points", "device_weights", "render_arrays", "render_timed",
     "MODE_SRGB", "MODE_LAB",
 ]

@@ -248,8 +248,8 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
             hr = borders.halo
             halo = (maps.index(max(0, y0 - hr), y0) if y0 > 0 else None,
                     maps.index(y1, min(H, y1 + hr)) if y1 < H else None)
-            mix = borders.mix_device(pm.index_d, y0, halo=halo, threads=threads).numpy()
-        opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
+            mix = borders.mix_device(pm.index_d, y0, halo=halo, threads=threads)
+        opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
         _mix_borders(model, dk, out, mix, threads, clamp, maps.patch_set)
         _add_detail(model, out, pm.index_d, pm.st_d, device, threads, dd)
         band = out.numpy().reshape(y1 - y0, W, 3)
@@ -393,10 +393,23 @@ def _add_detail(model, out, index, st, device, threads, dd=None) -> None:
 
 
 def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> None:
-    """Mix the regions across borders into ``out`` (device frame) at ``borders``' pixels."""
+    """Mix the regions across borders into ``out`` (device frame) at ``borders``' pixels.
+
+    ``borders``: a host :class:`BorderMix`, or a
+    :class:`tpsv.gpu.coverage.DeviceBorderMix` whose pixels never leave the
+    device (the same ``(S, T)`` across and the same mix).
+    """
     if borders is None or borders.pixels.size == 0:
         return
     from ..gpu import tps as gtps
+
+    if not isinstance(borders, BorderMix):
+        from ..gpu.patchmap import PatchSet, inverse_points_device
+
+        ps = patch_set if patch_set is not None else PatchSet.build([r.patch for r in model.regions], dk.device)
+        st = inverse_points_device(ps, borders.other, borders.xy)
+        gtps.mix_border_device(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
+        return
 
     st = border_st(model, borders, dk.device, patch_set)
     gtps.mix_border(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
@@ -450,8 +463,9 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
     if antialias:
         from ..gpu.coverage import DeviceBorders
 
-        mix = DeviceBorders(model, W, H, device).mix_device(pm.index_d, threads=threads).numpy()
-    opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
+        mix = DeviceBorders(model, W, H, device).mix_device(pm.index_d, threads=threads)
+    # straight alpha changes which pixels mix: on the host; otherwise the border pixels stay on the device
+    opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
     tick("edges")
     img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick, borders=mix, download=download)
     if opaque is not None:
@@ -525,10 +539,8 @@ class Renderer:
             raise TpsvError("keep_on_device renders RGB frames; alpha is on the host")
         outlines, borders = self._prepared(W, H)
         pm = pixel_map(model, W, H, self.device, outlines=outlines)
-        mix = None
-        if antialias:
-            mix = borders.mix_device(pm.index_d, threads=self.threads).numpy()
-        opaque, mix = opacity(model, pm.index, mix) if alpha else (None, mix)
+        mix = borders.mix_device(pm.index_d, threads=self.threads) if antialias else None
+        opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
         out = gtps.rasterise(self._dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
         _mix_borders(model, self._dk, out, mix, self.threads, self.clamp)
         _add_detail(model, out, pm.index_d, pm.st_d, self.device, self.threads, self._dd)
