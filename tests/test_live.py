@@ -103,3 +103,51 @@ def test_solve_reusing_matches_full_solve(model):
     keys = kernel_keys(ks)
     assert len({k.tobytes() for k in keys}) <= ks.n_kernels
     assert np.array_equal(keys, kernel_keys(tps.group_kernels(model)))
+
+
+def host_dirty(index, st, ks, stale, near):
+    """Reference: the dirty pixels (flat bool) as numpy finds them (float32 cell, as the blend)."""
+    index = index.ravel()
+    out = np.zeros(index.size, bool)
+    inside = index >= 0
+    out[inside] = stale[index[inside]]
+    cand = inside & ~out & (ks.grid[np.maximum(index, 0), 0] != 0)
+    pi = np.flatnonzero(cand)
+    r = index[pi]
+    s = st.reshape(-1, 2)[pi]
+    gx, gy = ks.grid[r, 0], ks.grid[r, 1]
+    a = np.clip(s[:, 0], np.float32(0), np.float32(1)).astype(np.float32) * gx.astype(np.float32)
+    b = np.clip(s[:, 1], np.float32(0), np.float32(1)).astype(np.float32) * gy.astype(np.float32)
+    ix = np.clip(np.floor(a).astype(np.int64), 0, gx - 1)
+    iy = np.clip(np.floor(b).astype(np.int64), 0, gy - 1)
+    out[pi] = near[ks.grid[r, 2] + iy * gx + ix]
+    return out
+
+
+def test_rasterise_dirty_draws_exactly_the_dirty_pixels():
+    import warp as wp
+    from tpsv.gpu.rasterise import rasterise_dirty
+    from tpsv.rendering.pixelmap import pixel_map
+
+    m = photo_model()
+    ks = tps.group_kernels(m)
+    dk = gtps.solve(gtps.upload(ks))
+    pm = pixel_map(m, m.width, m.height, "cpu")
+    full = gtps.rasterise(dk, pm.index_d, pm.st_d).numpy()
+    rng = np.random.default_rng(3)
+    R = ks.grid.shape[0]
+    stale = np.zeros(R, bool)
+    stale[rng.integers(R)] = True
+    near = rng.random(ks.n_kernels) < 0.2
+    changed = rng.random(m.width * m.height) < 0.01
+    for ch in (None, changed):
+        out = wp.full((m.height, m.width), wp.vec3f(-1.0, -1.0, -1.0), dtype=wp.vec3f, device="cpu")
+        n = rasterise_dirty(dk, pm.index_d, pm.st_d, out, stale, near, ch)
+        want = host_dirty(pm.index, pm.st, ks, stale, near)
+        if ch is not None:
+            want |= ch
+        got = out.numpy().reshape(-1, 3)
+        drawn = (got != -1.0).any(axis=1)
+        assert 0 < n == int(want.sum()) < want.size
+        assert np.array_equal(drawn, want)
+        assert np.array_equal(got[want], full.reshape(-1, 3)[want])

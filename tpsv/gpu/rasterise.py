@@ -188,6 +188,48 @@ def _rasterise_list(
 
 
 @wp.kernel
+def _rasterise_dirty(
+    kb: BlendArrays,
+    region: wp.array2d(dtype=wp.int32),
+    stmap: wp.array2d(dtype=wp.vec2f),
+    y0: int,
+    changed: wp.array(dtype=wp.uint8),
+    stale: wp.array(dtype=wp.uint8),
+    near: wp.array(dtype=wp.uint8),
+    background: wp.vec3f,
+    clamp: int,
+    mode: int,
+    out: wp.array2d(dtype=wp.vec3f),
+    counts: wp.array(dtype=wp.int32),
+):
+    """The dirty pixels of rows ``y0 ..`` (see :func:`rasterise_dirty`); ``counts[y]`` += pixels drawn."""
+    yy, x = wp.tid()
+    y = yy + y0
+    W = region.shape[1]
+    dirty = False
+    if changed.shape[0] > 0:
+        dirty = changed[y * W + x] != wp.uint8(0)
+    r = region[y, x]
+    if not dirty and r >= 0:
+        if stale[r] != wp.uint8(0):
+            dirty = True
+        else:
+            gx = kb.grid[r, 0]
+            gy = kb.grid[r, 1]
+            if gx != 0 and near.shape[0] > 0:
+                # the pixel's own cell, as _blend finds it
+                st = stmap[y, x]
+                a = wp.clamp(st[0], 0.0, 1.0) * float(gx)
+                b = wp.clamp(st[1], 0.0, 1.0) * float(gy)
+                ix = wp.min(wp.max(int(wp.floor(a)), 0), gx - 1)
+                iy = wp.min(wp.max(int(wp.floor(b)), 0), gy - 1)
+                dirty = near[kb.grid[r, 2] + iy * gx + ix] != wp.uint8(0)
+    if dirty:
+        out[y, x] = _shade(kb, region, stmap, y, x, background, clamp, mode)
+        wp.atomic_add(counts, y, 1)
+
+
+@wp.kernel
 def _eval_points(
     kb: BlendArrays,
     region: wp.array(dtype=wp.int32),
@@ -391,6 +433,77 @@ def rasterise_pixels(
 
     _launch_banded(_rasterise_list, n, n >= _BAND_MIN, dev, threads, launch)
     return out
+
+
+def rasterise_dirty(
+    dk: DeviceKernels,
+    region,
+    st,
+    out: wp.array,
+    stale,
+    near,
+    changed=None,
+    mode: int = MODE_SRGB,
+    background=(50.0, 0.0, 0.0),
+    threads: int | None = None,
+    clamp: bool = True,
+) -> int:
+    """:func:`rasterise` for the dirty pixels only, found on the device; returns how many were drawn.
+
+    A pixel is dirty when it is flagged in ``changed``, or lies in a region
+    flagged ``stale``, or lies in a cell (of its region's grid, as the blend
+    finds its own cell) whose kernel is flagged ``near``. Only per-region
+    and per-kernel flags cross from the host; the pixel maps stay on the
+    device. Other pixels of ``out`` are left as they are; dirty ones get
+    exactly the values :func:`rasterise` gives them.
+
+    Parameters
+    ----------
+    dk : DeviceKernels
+        Solved.
+    region, st, out, mode, background, threads, clamp
+        As :func:`rasterise_pixels`.
+    stale : array_like (R,) bool
+        Regions whose every pixel is dirty.
+    near : array_like (n_kernels,) bool
+        Kernels whose cell's pixels are dirty (ignored in regions without features).
+    changed : array_like (H * W,) bool or wp.array(uint8), optional
+        Pixels dirty in any case (flat ``y * W + x``).
+
+    Returns
+    -------
+    int
+        Pixels drawn.
+    """
+    reg, stm = _pixel_maps(dk, region, st)
+    dev = dk.device
+    H, W = reg.shape
+    if tuple(stm.shape) != (H, W) or tuple(out.shape) != (H, W):
+        raise TpsvError("region map, (S, T) map and output differ in size")
+
+    def flags(v, n=None):
+        if isinstance(v, wp.array):
+            return v
+        a = np.ascontiguousarray(np.asarray(v, bool).reshape(-1), np.uint8)
+        if n is not None and a.shape[0] != n:
+            raise TpsvError(f"{a.shape[0]} flags for {n} entries")
+        return wp.array(a, dtype=wp.uint8, device=dev)
+
+    stale_d = flags(stale, int(dk.blend.grid.shape[0]))
+    near_d = flags(near, dk.n_kernels)
+    changed_d = flags(np.zeros(0, bool) if changed is None else changed)
+    if changed_d.shape[0] not in (0, H * W):
+        raise TpsvError(f"{changed_d.shape[0]} changed-pixel flags for {H * W} pixels")
+    counts = wp.zeros(H, dtype=wp.int32, device=dev)
+    bg = wp.vec3f(*[float(v) for v in background])
+
+    def launch(r0, r1):
+        wp.launch(_rasterise_dirty, dim=(r1 - r0, W), inputs=[dk.blend, reg, stm, r0, changed_d, stale_d, near_d, bg,
+                                                              int(clamp), int(mode), out, counts], device=dev)
+
+    # bands of rows: a row's count is written by one band only
+    _launch_banded(_rasterise_dirty, H, H * W >= _BAND_MIN, dev, threads, launch)
+    return int(counts.numpy().sum())
 
 
 def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threads: int | None = None,

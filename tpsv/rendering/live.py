@@ -22,8 +22,11 @@ kernels, the rendered image) and brings them up to date for a new model:
 4. **Rasterise.** Only dirty pixels are rasterised again: pixels of a region
    whose sub-patch grid changed, and pixels whose cell is within one cell of
    a re-solved kernel's cell (a kernel's support reaches at most half a cell
-   into its neighbours), plus the geometry changes of step 1
-   (:func:`tpsv.gpu.tps.rasterise_pixels`).
+   into its neighbours), plus the geometry changes of step 1. The host flags
+   regions and kernels only (few); the device finds the dirty pixels from
+   the maps it already holds and draws them in the same launch
+   (:func:`tpsv.gpu.rasterise.rasterise_dirty`), so no per-pixel array
+   crosses to or from the host after a colour edit.
 5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.rendering.borders`)
    are mixed into a copy of that frame after every update; where they are and
    their ``(S, T)`` across are found again only when the geometry changed.
@@ -48,12 +51,9 @@ from ..gpu import resolve_device
 from ..gpu import tps as gtps
 from ..gpu import warp
 from ..gpu.coverage import DeviceBorders
+from ..gpu.rasterise import rasterise_dirty
 from .pixelmap import draw_order, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st, output_size
-
-
-#: Above this fraction of dirty pixels, every pixel is rasterised (one regular launch).
-FULL_RASTER_FRACTION = 0.6
 
 
 @dataclass
@@ -260,14 +260,14 @@ class LiveImage:
         recomputed : bool
         dirty : (H * W,) bool or None
             Pixels whose region or ``(S, T)`` changed (None when ``full``:
-            every pixel is drawn again).
+            every pixel is drawn again; empty when the maps were kept).
         """
         recomputed = full or not same_geometry(self.model, model)
-        dirty = None if full else np.zeros(H * W, bool)
+        dirty = None if full else np.zeros(0, bool)
         if recomputed:
             pm = pixel_map(model, W, H, self.device)
             if not full:
-                dirty |= (pm.index != self._pm.index).ravel()
+                dirty = (pm.index != self._pm.index).ravel()
                 dirty |= (pm.st != self._pm.st).any(axis=2).ravel()
             self.W, self.H = W, H
             self._pm = pm
@@ -308,13 +308,11 @@ class LiveImage:
         if dirty is None:
             self._out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
             return self.H * self.W
-        dirty |= self._kernel_dirty(ks, self.kernels, reuse)
-        pix = np.flatnonzero(dirty)
-        if pix.size > FULL_RASTER_FRACTION * dirty.size:
-            gtps.rasterise(dk, pm.index_d, pm.st_d, out=self._out, threads=self.threads, clamp=self.clamp)
-        else:
-            gtps.rasterise_pixels(dk, pm.index_d, pm.st_d, pix, self._out, threads=self.threads, clamp=self.clamp)
-        return int(pix.size)
+        stale, near = self._dirty_flags(ks, self.kernels, reuse)
+        if not (dirty.any() or stale.any() or near.any()):
+            return 0
+        return rasterise_dirty(dk, pm.index_d, pm.st_d, self._out, stale, near, dirty if dirty.size else None,
+                               threads=self.threads, clamp=self.clamp)
 
     def _mix_borders(self, model, dk) -> None:
         """Step 5: the shown image, the frame with the anti-aliased borders mixed in (as ``render`` does).
@@ -344,18 +342,25 @@ class LiveImage:
             self._detail = (model.detail, dd)
         add_detail(dd, self._shown, self._pm.index_d, self._pm.st_d, threads=self.threads)
 
-    def _kernel_dirty(self, ks, old_ks, reuse) -> np.ndarray:
-        """Pixels (flat bool) whose colour may depend on a re-solved kernel or a changed grid or fill."""
-        index = self._pm.index.ravel()
-        R = ks.grid.shape[0]
+    def _dirty_flags(self, ks, old_ks, reuse):
+        """Per region and per kernel, which pixels may depend on a re-solved kernel or a changed grid or fill.
+
+        Returns
+        -------
+        stale : (R,) bool
+            Regions whose grid (or, without features, fill colour) changed: every pixel is dirty.
+        near : (n_kernels,) bool
+            Kernels whose own cell or a neighbouring cell (8-neighbourhood) was
+            re-solved: the pixels of their cell are dirty.
+        """
         solved = reuse < 0
-        grid_changed = np.ones(R, bool)
+        R = ks.grid.shape[0]
+        stale = np.ones(R, bool)
         if old_ks is not None and old_ks.grid.shape == ks.grid.shape:
-            grid_changed = (old_ks.grid[:, :2] != ks.grid[:, :2]).any(axis=1)
+            stale = (old_ks.grid[:, :2] != ks.grid[:, :2]).any(axis=1)
         featureless = ks.grid[:, 0] == 0
         if old_ks is not None and old_ks.fill.shape == ks.fill.shape:
-            grid_changed |= featureless & (old_ks.fill != ks.fill).any(axis=1)
-        # per kernel: its cell or a neighbouring cell (8-neighbourhood) was re-solved
+            stale |= featureless & (old_ks.fill != ks.fill).any(axis=1)
         near = np.zeros(ks.n_kernels, bool)
         for r in np.unique(ks.region[solved]):
             gx, gy, k0 = (int(v) for v in ks.grid[r])
@@ -366,24 +371,7 @@ class LiveImage:
                 for dx in (0, 1, 2):
                     d |= p[dy : dy + gy, dx : dx + gx]
             near[k0 : k0 + gx * gy] = d.ravel()
-        out = np.zeros(index.size, bool)
-        inside = index >= 0
-        out[inside] = grid_changed[index[inside]]
-        cand = inside & ~out & ~featureless[np.maximum(index, 0)]
-        if near.any() and cand.any():
-            pi = np.flatnonzero(cand)
-            r = index[pi]
-            st = self._pm.st.reshape(-1, 2)[pi]
-            gx = ks.grid[r, 0]
-            gy = ks.grid[r, 1]
-            # the cell as the device computes it (float32)
-            a = np.clip(st[:, 0], np.float32(0), np.float32(1)).astype(np.float32) * gx.astype(np.float32)
-            b = np.clip(st[:, 1], np.float32(0), np.float32(1)).astype(np.float32) * gy.astype(np.float32)
-            ix = np.clip(np.floor(a).astype(np.int64), 0, gx - 1)
-            iy = np.clip(np.floor(b).astype(np.int64), 0, gy - 1)
-            k = ks.grid[r, 2] + iy * gx + ix
-            out[pi] = near[k]
-        return out
+        return stale, near
 
 
 __all__ = ["LiveImage", "UpdateStats", "same_geometry", "same_grouping", "kernel_keys"]
