@@ -435,6 +435,31 @@ def rasterise_pixels(
     return out
 
 
+@wp.kernel
+def _changed(a_reg: wp.array2d(dtype=wp.int32), b_reg: wp.array2d(dtype=wp.int32), a_st: wp.array2d(dtype=wp.vec2f),
+             b_st: wp.array2d(dtype=wp.vec2f), out: wp.array(dtype=wp.uint8)):
+    y, x = wp.tid()
+    W = a_reg.shape[1]
+    sa = a_st[y, x]
+    sb = b_st[y, x]
+    flag = wp.uint8(0)
+    if a_reg[y, x] != b_reg[y, x] or sa[0] != sb[0] or sa[1] != sb[1]:
+        flag = wp.uint8(1)
+    out[y * W + x] = flag
+
+
+def changed_pixels(old_region, new_region, old_st, new_st) -> wp.array:
+    """Pixels whose region or ``(S, T)`` differ between two pixel maps on one device (``changed`` of
+    :func:`rasterise_dirty`): a flat ``wp.array`` of uint8, made and kept on the device."""
+    H, W = old_region.shape
+    if tuple(new_region.shape) != (H, W) or tuple(old_st.shape) != (H, W) or tuple(new_st.shape) != (H, W):
+        raise TpsvError("the pixel maps to compare differ in size")
+    dev = old_region.device
+    out = wp.empty(H * W, dtype=wp.uint8, device=dev)
+    wp.launch(_changed, dim=(H, W), inputs=[old_region, new_region, old_st, new_st, out], device=dev)
+    return out
+
+
 def rasterise_dirty(
     dk: DeviceKernels,
     region,

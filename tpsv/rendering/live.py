@@ -51,7 +51,7 @@ from ..gpu import resolve_device
 from ..gpu import tps as gtps
 from ..gpu import warp
 from ..gpu.coverage import DeviceBorders
-from ..gpu.rasterise import rasterise_dirty
+from ..gpu.rasterise import changed_pixels, rasterise_dirty
 from .pixelmap import draw_order, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st, output_size
 
@@ -258,17 +258,17 @@ class LiveImage:
         Returns
         -------
         recomputed : bool
-        dirty : (H * W,) bool or None
-            Pixels whose region or ``(S, T)`` changed (None when ``full``:
-            every pixel is drawn again; empty when the maps were kept).
+        dirty : wp.array (H * W,) uint8, empty ndarray, or None
+            Pixels whose region or ``(S, T)`` changed, flagged on the device
+            (None when ``full``: every pixel is drawn again; empty when the
+            maps were kept).
         """
         recomputed = full or not same_geometry(self.model, model)
         dirty = None if full else np.zeros(0, bool)
         if recomputed:
             pm = pixel_map(model, W, H, self.device)
             if not full:
-                dirty = (pm.index != self._pm.index).ravel()
-                dirty |= (pm.st != self._pm.st).any(axis=2).ravel()
+                dirty = changed_pixels(self._pm.index_d, pm.index_d, self._pm.st_d, pm.st_d)
             self.W, self.H = W, H
             self._pm = pm
             self._mix = None
@@ -309,9 +309,10 @@ class LiveImage:
             self._out = gtps.rasterise(dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
             return self.H * self.W
         stale, near = self._dirty_flags(ks, self.kernels, reuse)
-        if not (dirty.any() or stale.any() or near.any()):
+        kept = isinstance(dirty, np.ndarray)  # the maps were kept: only kernels make pixels dirty
+        if kept and not (stale.any() or near.any()):
             return 0
-        return rasterise_dirty(dk, pm.index_d, pm.st_d, self._out, stale, near, dirty if dirty.size else None,
+        return rasterise_dirty(dk, pm.index_d, pm.st_d, self._out, stale, near, None if kept else dirty,
                                threads=self.threads, clamp=self.clamp)
 
     def _mix_borders(self, model, dk) -> None:
