@@ -36,7 +36,6 @@ import json
 import logging
 import multiprocessing
 import os
-import re
 import signal
 import threading
 import time
@@ -47,7 +46,7 @@ from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 from .errors import TpsvError
-from .fileio import display, pid_alive
+from .fileio import display, remove_stale_temporaries
 
 #: Output extension of each command ``batch`` runs.
 EXTENSIONS = {"vectorize": ".tpsv", "render": ".png", "magnify": ".png", "export": ".pdf"}
@@ -58,8 +57,6 @@ CONNECT_TIMEOUT = 10.0
 
 DONE, SKIPPED, FAILED = "done", "skipped", "failed"
 
-# A temporary of fileio.Outputs: .NAME.tpsv-PID-XXXX.tmp
-_TMP_RE = re.compile(r"^\.(?P<name>.+)\.tpsv-(?P<pid>\d+)-[0-9a-f]+\.tmp$")
 # One file at a time per worker process, whatever its thread count: a command
 # redirects the process's stdout and file descriptor 2 while it runs.
 _ONE_AT_A_TIME = threading.Lock()
@@ -408,21 +405,7 @@ def remove_orphan_temporaries(tasks: Sequence[Task]) -> int:
     for t in tasks:
         d, name = os.path.split(os.path.abspath(t.output))
         wanted.setdefault(d, set()).add(name)
-    removed = 0
-    for d, names in wanted.items():
-        try:
-            entries = os.listdir(d)
-        except OSError:
-            continue
-        for entry in entries:
-            m = _TMP_RE.match(entry)
-            if m and m.group("name") in names and not pid_alive(int(m.group("pid"))):
-                try:
-                    os.unlink(os.path.join(d, entry))
-                    removed += 1
-                except OSError:
-                    pass
-    return removed
+    return sum(remove_stale_temporaries(d, names) for d, names in wanted.items())
 
 
 def run_batch(command: str, inputs: Sequence[str], out_dir: str, options: Sequence[str] = (), *,

@@ -43,7 +43,7 @@ from .errors import TpsvError
 #: Largest input file read whole (bytes); bigger inputs are refused before reading.
 MAX_INPUT_BYTES = 512 * 2**20
 
-_TMP_RE = re.compile(r"\.tpsv-(\d+)-[0-9a-f]+\.tmp$")
+_TMP_RE = re.compile(r"^\.(?P<name>.+)\.tpsv-(?P<pid>\d+)-[0-9a-f]+\.tmp$")
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
 #: Held while a temporary is created and recorded, and during a commit's renames.
 _CRITICAL = threading.Lock()
@@ -62,7 +62,7 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
-def pid_alive(pid: int) -> bool:
+def _pid_alive(pid: int) -> bool:
     """Whether process ``pid`` exists (this one does; another user's does too)."""
     if pid == os.getpid():
         return True
@@ -77,20 +77,40 @@ def pid_alive(pid: int) -> bool:
 
 def _remove_stale_temporaries(target: Path) -> None:
     """Delete ``.NAME.tpsv-PID-*.tmp`` beside ``target`` whose writer process is gone."""
-    prefix = f".{target.name}.tpsv-"
+    remove_stale_temporaries(target.parent, {target.name})
+
+
+def remove_stale_temporaries(directory: str | os.PathLike, names) -> int:
+    """Delete the temporaries of outputs ``names`` in ``directory`` whose writer process is gone.
+
+    One listing of the directory for any number of outputs (``tpsv batch``
+    cleans up after workers stopped in the middle of a file).
+
+    Parameters
+    ----------
+    directory : path-like
+    names : collection of str
+        Output file names (``NAME`` of ``.NAME.tpsv-PID-XXXX.tmp``).
+
+    Returns
+    -------
+    int
+        Files removed.
+    """
     try:
-        names = os.listdir(target.parent)
+        entries = os.listdir(directory)
     except OSError:
-        return
-    for name in names:
-        if not name.startswith(prefix):
-            continue
-        m = _TMP_RE.search(name)
-        if m and not pid_alive(int(m.group(1))):
+        return 0
+    removed = 0
+    for entry in entries:
+        m = _TMP_RE.match(entry)
+        if m and m.group("name") in names and not _pid_alive(int(m.group("pid"))):
             try:
-                os.unlink(target.parent / name)
+                os.unlink(os.path.join(directory, entry))
+                removed += 1
             except OSError:
                 pass
+    return removed
 
 
 @contextlib.contextmanager
