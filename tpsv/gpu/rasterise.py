@@ -4,7 +4,7 @@ One thread per output pixel: its region, its ``(S, T)``, the at most 2 x 2
 covering kernels of the region's grid, the TPS of each in its local frame,
 the partition-of-unity blend (``tpsv.tps.blend`` module doc), then Lab ->
 sRGB (:func:`tpsv.gpu.color.lab_to_srgb`), clamped to ``[0, 1]``. The
-full-frame rasteriser, the pixel-list rasteriser (``tpsv.rendering.live``) and
+full-frame rasteriser, the dirty-pixel rasteriser (``tpsv.rendering.live``) and
 the scattered-point evaluation share one per-pixel body (:func:`_shade`,
 :func:`_blend`); the kernels' arrays reach them as one
 :class:`tpsv.gpu.device.BlendArrays`.
@@ -165,25 +165,6 @@ def _rasterise(
     """Every pixel of rows ``y0 ..``."""
     yy, x = wp.tid()
     y = yy + y0
-    out[y, x] = _shade(kb, region, stmap, y, x, background, clamp, mode)
-
-
-@wp.kernel
-def _rasterise_list(
-    kb: BlendArrays,
-    region: wp.array2d(dtype=wp.int32),
-    stmap: wp.array2d(dtype=wp.vec2f),
-    pixels: wp.array(dtype=wp.int32),
-    width: int,
-    background: wp.vec3f,
-    clamp: int,
-    mode: int,
-    out: wp.array2d(dtype=wp.vec3f),
-):
-    """The listed pixels (flat indices ``y * width + x``) only."""
-    p = pixels[wp.tid()]
-    y = p / width
-    x = p - y * width
     out[y, x] = _shade(kb, region, stmap, y, x, background, clamp, mode)
 
 
@@ -394,47 +375,6 @@ def rasterise(
     return out
 
 
-def rasterise_pixels(
-    dk: DeviceKernels,
-    region,
-    st,
-    pixels,
-    out: wp.array,
-    mode: int = MODE_SRGB,
-    background=(50.0, 0.0, 0.0),
-    threads: int | None = None,
-    clamp: bool = True,
-) -> wp.array:
-    """:func:`rasterise` for the pixels ``pixels`` (flat indices ``y * W + x``) only, into ``out``.
-
-    Other pixels of ``out`` are left as they are; the listed ones get exactly
-    the values :func:`rasterise` gives them. Parameters as :func:`rasterise`;
-    ``out`` (H, W) is required.
-
-    Returns
-    -------
-    wp.array2d(dtype=vec3f)
-        ``out``.
-    """
-    reg, stm = _pixel_maps(dk, region, st)
-    dev = dk.device
-    H, W = reg.shape
-    if tuple(stm.shape) != (H, W) or tuple(out.shape) != (H, W):
-        raise TpsvError("region map, (S, T) map and output differ in size")
-    pix = np.ascontiguousarray(pixels, np.int32).reshape(-1)
-    n = pix.shape[0]
-    if n == 0:
-        return out
-    pix_d = wp.array(pix, dtype=wp.int32, device=dev)
-    bg = wp.vec3f(*[float(v) for v in background])
-
-    def launch(a, b):
-        wp.launch(_rasterise_list, dim=b - a, inputs=[dk.blend, reg, stm, pix_d[a:b], int(W), bg, int(clamp), int(mode), out], device=dev)
-
-    _launch_banded(_rasterise_list, n, n >= _BAND_MIN, dev, threads, launch)
-    return out
-
-
 @wp.kernel
 def _changed(a_reg: wp.array2d(dtype=wp.int32), b_reg: wp.array2d(dtype=wp.int32), a_st: wp.array2d(dtype=wp.vec2f),
              b_st: wp.array2d(dtype=wp.vec2f), out: wp.array(dtype=wp.uint8)):
@@ -487,7 +427,7 @@ def rasterise_dirty(
     dk : DeviceKernels
         Solved.
     region, st, out, mode, background, threads, clamp
-        As :func:`rasterise_pixels`.
+        As :func:`rasterise`; ``out`` (H, W) is required.
     stale : array_like (R,) bool
         Regions whose every pixel is dirty.
     near : array_like (n_kernels,) bool

@@ -9,7 +9,7 @@ The code lives by step, one code path for the ``cpu`` and ``cuda`` devices:
 * :mod:`tpsv.gpu.solve`: Eq. (4) per kernel in float64 (null-space
   Cholesky, affine fallback), :func:`solve`, :func:`solve_reusing`;
 * :mod:`tpsv.gpu.rasterise`: the per-pixel blend in float32,
-  :func:`rasterise`, :func:`rasterise_pixels`, :func:`eval_points`;
+  :func:`rasterise`, :func:`rasterise_dirty`, :func:`eval_points`;
 * :mod:`tpsv.gpu.color`: Lab -> sRGB, the twin of :mod:`tpsv.color`.
 """
 
@@ -24,7 +24,7 @@ from .rasterise import (
     mix_border,
     mix_border_device,
     rasterise,
-    rasterise_pixels,
+    rasterise_dirty,
     render_arrays,
     render_timed,
 )
@@ -33,6 +33,6 @@ from .solve import FULL_SOLVE_FRACTION, coefficients, solve, solve_reusing, subs
 __all__ = [
     "DeviceKernels", "upload",
     "solve", "solve_reusing", "subset_kernels", "coefficients", "FULL_SOLVE_FRACTION",
-    "rasterise", "rasterise_pixels", "mix_border", "mix_border_device", "eval_points", "device_weights", "render_arrays", "render_timed",
+    "rasterise", "rasterise_dirty", "mix_border", "mix_border_device", "eval_points", "device_weights", "render_arrays", "render_timed",
     "MODE_SRGB", "MODE_LAB",
 ]
