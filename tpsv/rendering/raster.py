@@ -286,7 +286,8 @@ class Stopwatch:
     """Wall time per stage, each stage ending with a device synchronisation.
 
     Call it with a stage name when the stage is done; ``times`` maps names to
-    seconds since the previous call (or since the stopwatch was made).
+    seconds since the previous call (or since the stopwatch was made), summed
+    over the calls with that name.
 
     Parameters
     ----------
@@ -303,7 +304,7 @@ class Stopwatch:
     def __call__(self, name: str) -> None:
         self._wp.synchronize_device(self.device)
         now = time.perf_counter()
-        self.times[name] = now - self._t0
+        self.times[name] = self.times.get(name, 0.0) + (now - self._t0)
         self._t0 = now
 
 
@@ -340,30 +341,7 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
         sRGB in ``[0, 1]``; without ``download`` the ``(H, W)`` ``wp.vec3f``
         array on ``device``.
     """
-    # gpu.tps imports Warp and defines its kernels: only commands that render pay for it
-    from ..gpu import tps as gtps
-
-    device = resolve_device(device)
-    H, W = index.shape[:2]
-    ks = kernels if kernels is not None else tps.group_kernels(model)
-    if ks.grid.shape[0] != len(model.regions):
-        raise TpsvError("the kernel set does not belong to this model")
-    tick("group")
-    dk = gtps.upload(ks, device)
-    tick("upload")
-    gtps.solve(dk, threads=threads)
-    tick("solve")
-    out = gtps.rasterise(dk, index, st, threads=threads, clamp=clamp)
-    tick("rasterise")
-    _mix_borders(model, dk, out, borders, threads, clamp)
-    tick("borders")
-    _add_detail(model, out, index, st, device, threads)
-    tick("detail")
-    if not download:
-        return out
-    img = out.numpy().reshape(H, W, 3)
-    tick("download")
-    return img
+    return Renderer(model, device, threads, clamp, kernels, tick).shade(index, st, borders, download, tick)
 
 
 def border_st(model, borders, device, patch_set=None) -> np.ndarray:
@@ -458,18 +436,8 @@ def _render(model, width, height, scale, device, kernels, threads, clamp, timed:
     device = resolve_device(device)
     watch = Stopwatch(device) if timed else None
     tick = watch if timed else no_tick
-    pm = pixel_map(model, W, H, device, tick)
-    mix = None
-    if antialias:
-        from ..gpu.coverage import DeviceBorders
-
-        mix = DeviceBorders(model, W, H, device).mix_device(pm.index_d, threads=threads)
-    # straight alpha changes which pixels mix: on the host; otherwise the border pixels stay on the device
-    opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
-    tick("edges")
-    img = shade(model, pm.index_d, pm.st_d, device, kernels, threads, clamp, tick, borders=mix, download=download)
-    if opaque is not None:
-        img = np.dstack([img, opaque])
+    img = Renderer(model, device, threads, clamp, kernels, tick).render(W, H, antialias=antialias, alpha=alpha,
+                                                                       keep_on_device=not download, tick=tick)
     return img, (watch.times if timed else {})
 
 
@@ -485,6 +453,8 @@ class Renderer:
     for the last output size are kept, so frames of one size (a viewer's
     window) pay only the device stages. The pixels are :func:`render`'s.
 
+    :func:`render` and :func:`shade` are a renderer used once.
+
     Parameters
     ----------
     model : Model
@@ -495,6 +465,10 @@ class Renderer:
         Host threads for CPU launches.
     clamp : bool
         As :func:`render`.
+    kernels : KernelSet, optional
+        ``tps.group_kernels(model)`` (or :func:`tpsv.tps.recolor` of one) to reuse.
+    tick : callable(str), optional
+        Called after the ``group``, ``upload`` and ``solve`` stages.
 
     Examples
     --------
@@ -503,48 +477,87 @@ class Renderer:
     >>> big = r.render(scale=4)                                   # doctest: +SKIP
     """
 
-    def __init__(self, model, device: str = "cpu", threads=None, clamp: bool = True):
+    def __init__(self, model, device: str = "cpu", threads=None, clamp: bool = True, kernels=None, tick=no_tick):
+        # gpu.tps imports Warp and defines its kernels: only commands that render pay for it
         from ..gpu import tps as gtps
 
         self.model = model
         self.device = resolve_device(device)
         self.threads = threads
         self.clamp = bool(clamp)
-        self.kernels = tps.group_kernels(model)
-        self._dk = gtps.solve(gtps.upload(self.kernels, self.device), threads=threads)
-        self._dd = device_detail(model, self.device)
-        self._size = None  # (W, H, DeviceOutlines, DeviceBorders) of the last size rendered
+        self.kernels = kernels if kernels is not None else tps.group_kernels(model)
+        if self.kernels.grid.shape[0] != len(model.regions):
+            raise TpsvError("the kernel set does not belong to this model")
+        tick("group")
+        self._dk = gtps.upload(self.kernels, self.device)
+        tick("upload")
+        gtps.solve(self._dk, threads=threads)
+        tick("solve")
+        self._dd = device_detail(model, self.device)  # its upload counts as the detail stage
+        tick("detail")
+        # the last output size rendered, and its DeviceOutlines and DeviceBorders once made
+        self._size, self._outlines, self._borders = None, None, None
 
-    def _prepared(self, W: int, H: int):
-        from ..gpu.coverage import DeviceBorders
+    def _for_size(self, W: int, H: int) -> None:
+        if self._size != (W, H):
+            # the old size's device arrays go before the new ones come
+            self._size, self._outlines, self._borders = (W, H), None, None
+
+    def _outlines_for(self, W: int, H: int):
         from ..gpu.regions import DeviceOutlines
 
-        if self._size is None or self._size[:2] != (W, H):
-            self._size = None  # the old size's device arrays go before the new ones come
-            self._size = (W, H, DeviceOutlines(self.model, W, H, self.device, self.threads),
-                          DeviceBorders(self.model, W, H, self.device))
-        return self._size[2:]
+        self._for_size(W, H)
+        if self._outlines is None:
+            self._outlines = DeviceOutlines(self.model, W, H, self.device, self.threads)
+        return self._outlines
+
+    def _borders_for(self, W: int, H: int):
+        from ..gpu.coverage import DeviceBorders
+
+        self._for_size(W, H)
+        if self._borders is None:
+            self._borders = DeviceBorders(self.model, W, H, self.device)
+        return self._borders
 
     def render(self, width=None, height=None, scale=None, antialias: bool = True, alpha: bool = False,
-               keep_on_device: bool = False):
+               keep_on_device: bool = False, tick=no_tick):
         """The render at ``width x height`` or ``scale``, as :func:`render` (outputs of at most
-        :data:`ONE_PIECE_PIXELS`; ``keep_on_device``: the frame on the device, RGB only)."""
-        from ..gpu import tps as gtps
+        :data:`ONE_PIECE_PIXELS`; ``keep_on_device``: the frame on the device, RGB only).
 
+        ``tick`` is called after the ``regions``, ``patchmap``, ``edges`` and
+        :meth:`shade`'s stages.
+        """
         model = self.model
         W, H = output_size(model, width, height, scale)
         if W * H > ONE_PIECE_PIXELS:
             raise TpsvError(f"output {W}x{H} px is rendered in bands: use render_bands or render_png")
         if keep_on_device and alpha:
             raise TpsvError("keep_on_device renders RGB frames; alpha is on the host")
-        outlines, borders = self._prepared(W, H)
-        pm = pixel_map(model, W, H, self.device, outlines=outlines)
-        mix = borders.mix_device(pm.index_d, threads=self.threads) if antialias else None
+        pm = pixel_map(model, W, H, self.device, tick, outlines=self._outlines_for(W, H))
+        mix = self._borders_for(W, H).mix_device(pm.index_d, threads=self.threads) if antialias else None
+        # straight alpha changes which pixels mix: on the host; otherwise the border pixels stay on the device
         opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
-        out = gtps.rasterise(self._dk, pm.index_d, pm.st_d, threads=self.threads, clamp=self.clamp)
-        _mix_borders(model, self._dk, out, mix, self.threads, self.clamp)
-        _add_detail(model, out, pm.index_d, pm.st_d, self.device, self.threads, self._dd)
-        if keep_on_device:
+        tick("edges")
+        img = self.shade(pm.index_d, pm.st_d, mix, download=not keep_on_device, tick=tick)
+        return img if opaque is None else np.dstack([img, opaque])
+
+    def shade(self, index, st, borders=None, download: bool = True, tick=no_tick):
+        """Render steps 3-5 for pixels whose region and ``(S, T)`` are known (:func:`shade`).
+
+        ``tick`` is called after the ``rasterise``, ``borders``, ``detail``
+        and ``download`` stages.
+        """
+        from ..gpu import tps as gtps
+
+        H, W = index.shape[:2]
+        out = gtps.rasterise(self._dk, index, st, threads=self.threads, clamp=self.clamp)
+        tick("rasterise")
+        _mix_borders(self.model, self._dk, out, borders, self.threads, self.clamp)
+        tick("borders")
+        _add_detail(self.model, out, index, st, self.device, self.threads, self._dd)
+        tick("detail")
+        if not download:
             return out
         img = out.numpy().reshape(H, W, 3)
-        return img if opaque is None else np.dstack([img, opaque])
+        tick("download")
+        return img
