@@ -9,7 +9,7 @@ from .options import (FINITE_NON_NEGATIVE, IMAGE_HELP, KERNEL_SIZE, SEED, check_
                       device_option, emit_json, image_format, json_option, output_option)
 from .outputs import claim_outputs
 from .. import codec, metrics
-from ..encode.rate import DEFAULT_QUALITY, MAX_TRIALS, encode_quality
+from ..encode.rate import DEFAULT_QUALITY, encode_quality, progress_steps
 from ..encode.vectorize import scheme_params, vectorize as vectorize_image
 from ..errors import TpsvError
 from ..image import encode_image, read_image_alpha, read_labels
@@ -78,8 +78,7 @@ def run_vectorize(ctx, image, labels, seed, iterations, t_canny, t_super, kernel
     lab = read_labels(labels, shape=rgb.shape[:2]) if labels else None
     params = scheme_params("paper" if plain else "tpsv", kernel_size=kernel_size, smoothing=smoothing)
     if not thresholds:
-        total = 1 + (MAX_TRIALS if (target_psnr is not None or max_bytes is not None) else 1)
-        with progress_bar(ctx, total, "vectorize") as bar:
+        with progress_bar(ctx, progress_steps(target_psnr, max_bytes), "vectorize") as bar:
             return rgb, encode_quality(rgb, lab, quality=quality, target_psnr=target_psnr, max_bytes=max_bytes,
                                        detail=detail, seed=seed, params=params, device=device, outlines=outlines,
                                        alpha=alpha, progress=advance(bar))

@@ -109,7 +109,8 @@ def straight(rgb: np.ndarray, alpha: np.ndarray, mask: np.ndarray) -> np.ndarray
     """
     out = np.array(rgb, np.float32, copy=True)
     empty = np.asarray(alpha) <= 0
-    fill = out[_along(mask)].mean(axis=0) if _along(mask).any() else np.full(3, 0.5, np.float32)
+    edge = _along(mask)
+    fill = out[edge].mean(axis=0) if edge.any() else np.full(3, 0.5, np.float32)
     out[empty] = fill
     return out
 

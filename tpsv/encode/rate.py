@@ -227,7 +227,7 @@ def encode_quality(
         raise TpsvError(f"maximum bytes {max_bytes} is not positive")
     if quality is not None:
         quality = check_quality(quality)
-    total = 1 + (1 if quality is not None or (target_psnr is None and max_bytes is None) else MAX_TRIALS)
+    total = progress_steps(target_psnr, max_bytes)
     report = progress or (lambda done, total: None)
     rgb, geometry = alpha_geometry(rgb, alpha, labels, seed, outlines)
     report(1, total)
@@ -254,6 +254,12 @@ def encode_quality(
 
 #: Most encodings a search for a target PSNR or size tries (bisection of 1..100, after the ends).
 MAX_TRIALS = 9
+
+
+def progress_steps(target_psnr=None, max_bytes=None) -> int:
+    """Steps :func:`encode_quality` reports to ``progress``: the geometry, then one encoding, or up to
+    :data:`MAX_TRIALS` when searching for a PSNR or a size."""
+    return 1 + (MAX_TRIALS if target_psnr is not None or max_bytes is not None else 1)
 
 
 def _lowest(ok) -> int | None:
