@@ -341,3 +341,13 @@ def test_cli_render_streams_large_outputs_into_the_staged_file(traced, tmp_path,
     assert calls
     got = cv2.imdecode(np.frombuffer(out.read_bytes(), np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
     assert np.array_equal(got, render.to_uint8(render.render(model, 97, 61)))
+
+
+def test_sixteen_bit_bands_are_the_render_rounded_to_16_bits(traced):
+    from tpsv.image import to_uint16
+
+    whole = render.render(traced, width=50, height=37)
+    rows = assemble(render.render_bands(traced, width=50, height=37, max_pixels=50 * 6, depth=16))
+    assert rows.dtype == np.uint16 and np.array_equal(rows, to_uint16(whole))
+    with pytest.raises(TpsvError, match="8 or 16"):
+        next(render.render_bands(traced, width=50, height=37, depth=12))

@@ -21,11 +21,11 @@ from .outputs import claim_outputs, encode_model
 from .. import codec
 from ..encode.alpha import has_transparency
 from ..errors import TpsvError
-from ..image import OutputFormat, encode_image, read_image, read_labels, to_uint16
+from ..image import OutputFormat, encode_image, read_image, read_labels
 from ..png import png_chunks
-from ..rendering import raster
 from ..rendering.magnify import magnify_raster
-from ..rendering.raster import MAX_ARRAY_PIXELS, TILE_PIXELS, output_size, render as render_raster, render_png
+from ..rendering.raster import (MAX_ARRAY_PIXELS, TILE_PIXELS, output_size, render as render_raster, render_bands,
+                                render_png)
 
 
 def render_file(model, width: int, height: int, fmt: OutputFormat = OutputFormat(), device: str = "cpu",
@@ -33,8 +33,8 @@ def render_file(model, width: int, height: int, fmt: OutputFormat = OutputFormat
     """The image file of ``model`` rendered at ``width x height`` in ``fmt``, piece by piece.
 
     PNG of more than ``max_pixels`` pixels is rendered in bands and streamed
-    (8-bit: ``tpsv.rendering.raster.render_png``; 16-bit: the float bands
-    rounded by ``tpsv.image.to_uint16``), so memory stays bounded at any
+    (8-bit: ``tpsv.rendering.raster.render_png``; 16-bit: the bands of
+    ``render_bands(..., depth=16)``), so memory stays bounded at any
     size; smaller outputs and the other formats are encoded whole
     (``tpsv.image.encode_image``), the latter at most
     ``tpsv.rendering.raster.MAX_ARRAY_PIXELS`` pixels. A model with transparent
@@ -89,9 +89,8 @@ def _png16(model, W, H, device, antialias, max_pixels, alpha):
     if W * H <= max_pixels:
         yield encode_image(render_raster(model, W, H, device=device, antialias=antialias, alpha=alpha), fmt)
         return
-    # render_bands rounds to 8 bits; _bands gives the float rows the 16-bit rounding needs
-    bands = raster._bands(model, W, H, device, None, None, True, max_pixels, antialias, alpha)
-    yield from png_chunks(W, H, ((y0, to_uint16(rows)) for y0, rows in bands), depth=16, channels=4 if alpha else 3)
+    bands = render_bands(model, W, H, device=device, max_pixels=max_pixels, antialias=antialias, alpha=alpha, depth=16)
+    yield from png_chunks(W, H, bands, depth=16, channels=4 if alpha else 3)
 
 
 def _render_image(out, model, output, size, scale, fmt, device, antialias: bool = True) -> dict:

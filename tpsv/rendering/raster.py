@@ -45,7 +45,7 @@ import numpy as np
 
 from .. import tps
 from ..errors import TpsvError
-from ..image import to_uint8
+from ..image import to_uint8, to_uint16
 from ..gpu import resolve_device, warp
 from .borders import BorderMix
 from .pixelmap import BandMaps, no_tick, pixel_map
@@ -170,12 +170,14 @@ def render(model, width=None, height=None, scale=None, device: str = "cpu", kern
 
 
 def render_bands(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
-                 clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True, alpha: bool = False):
+                 clamp: bool = True, max_pixels: int = TILE_PIXELS, antialias: bool = True, alpha: bool = False,
+                 depth: int = 8):
     """Render ``model`` band by band: yields ``(y0, rows)``, top to bottom.
 
-    ``rows`` is uint8 sRGB ``(h, W, 3)``, rows ``y0 .. y0 + h`` of the output,
-    rounded as ``tpsv.image.encode_png`` rounds :func:`render`'s floats, so
-    the bands put together are exactly the 8-bit image of :func:`render`.
+    ``rows`` is uint8 sRGB ``(h, W, 3)`` (uint16 with ``depth=16``), rows
+    ``y0 .. y0 + h`` of the output, rounded as ``tpsv.image.encode_image``
+    rounds :func:`render`'s floats, so the bands put together are exactly
+    the 8- or 16-bit image of :func:`render`.
     Each band holds at most ``max_pixels`` pixels (one row at least); an
     output of at most ``max_pixels`` pixels comes as one band. Memory stays
     in proportion to a band whatever the output size (module docstring).
@@ -184,12 +186,15 @@ def render_bands(model, width=None, height=None, scale=None, device: str = "cpu"
     Yields
     ------
     y0 : int
-    rows : ndarray (h, W, 3) uint8
+    rows : ndarray (h, W, 3) uint8 or uint16
         ``(h, W, 4)`` RGBA with ``alpha``.
     """
+    if depth not in (8, 16):
+        raise TpsvError(f"bands of {depth} bits a sample cannot be rendered (8 or 16)")
     W, H = output_size(model, width, height, scale)
+    rounding = to_uint8 if depth == 8 else to_uint16
     for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias, alpha):
-        yield y0, to_uint8(rows)
+        yield y0, rounding(rows)
 
 
 def render_png(model, width=None, height=None, scale=None, device: str = "cpu", kernels=None, threads=None,
