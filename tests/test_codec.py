@@ -323,20 +323,33 @@ def test_outline_shift():
     assert sections.xy_shift(np.array([[8, 4], [16, -12]])) == 2
     assert sections.xy_shift(np.array([[8, 16], [64, -8]])) == 3
     assert sections.xy_shift(np.array([[1, 4]])) == 0
-    assert sections.xy_shift(np.zeros((0, 2), np.int32)) == 3
+    assert sections.xy_shift(np.array([[16, 32], [64, -16]])) == 4
+    assert sections.xy_shift(np.zeros((0, 2), np.int32)) == 4
     shifted = msgpack.unpackb(raw_sections(codec.encode(half_pixel_model()))[1])
-    assert shifted["xy_shift"] == 2
+    assert shifted["xy_shift"] == 3  # half pixels in 1/16 px units
     # a shift that takes a stored coordinate beyond 32 bits is refused
     data = codec.encode(half_pixel_model())
     base = msgpack.unpackb(raw_sections(data)[1])
     big = np.zeros(len(base["xy"]) // 8, np.int64)
-    big[0] = 2**29
+    big[0] = 2**28
     xy = b"".join(sections.to_planes(sections.delta_zigzag(v.astype(np.int32), 4, 1), 4) for v in (big, big))
-    reject(assemble(data, {"regions": pack({**base, "xy_shift": 3, "xy": xy})}), "beyond the 32-bit range")
+    reject(assemble(data, {"regions": pack({**base, "xy_shift": 4, "xy": xy})}), "beyond the 32-bit range")
+    reject(assemble(data, {"regions": pack({**base, "xy_shift": 5})}), "xy_shift")
     m = half_pixel_model()
-    m.regions[0].outline[0][1, 0] = 4.125
+    m.regions[0].outline[0][1, 0] = 4.0625
     assert msgpack.unpackb(raw_sections(codec.encode(m))[1])["xy_shift"] == 0
     assert_models_identical(codec.decode(codec.encode(m)), codec.quantize(m))
+
+
+def test_old_versions_count_outlines_in_eighths():
+    """Before version 5 outlines are in 1/8 px: xy_shift stops at 3, and the stored values mean twice as much."""
+    data = (Path(__file__).parent / "data" / "v2" / "chelsea.tpsv").read_bytes()
+    regions = msgpack.unpackb(raw_sections(data)[1])
+    reject(assemble(data, {"regions": pack({**regions, "xy_shift": 4})}), "xy_shift = 4 not in 0..3")
+    m = codec.decode(data)
+    n = len(regions["xy"]) // 8
+    xs = sections.undelta_zigzag(sections.from_planes(regions["xy"][:4 * n], n, 4), 4, sections.GEOMETRY_LAG)
+    assert m.regions[0].outline[0][0, 0] == (int(xs[0]) << regions["xy_shift"]) / 8
 
 
 def test_extra_order_does_not_change_bytes():
@@ -372,7 +385,7 @@ def test_section_sizes_break_down_the_file():
 def test_file_starts_with_magic_and_version():
     data = codec.encode(tiny_model())
     assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
-    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 4
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 5
 
 
 def test_compact_features():
@@ -527,10 +540,10 @@ def test_text_mode_mangling_is_named():
     reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
 
 
-@pytest.mark.parametrize("version", [5, 7, 65535])
+@pytest.mark.parametrize("version", [6, 7, 65535])
 def test_future_version_rejected(version):
     data = patch_header(codec.encode(tiny_model()), version=version)
-    reject(data, f"unsupported format version {version} (this tpsv reads up to 4)")
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 5)")
     # Even a short file of a future version gets the version message.
     reject(data[:12], f"unsupported format version {version}")
 
@@ -681,7 +694,7 @@ def test_region_section_validated():
         ({"ref": bytes([3, 0, 0, 0])}, "reference 0 to chain 1, but there are 1"),
         ({"xy": b"\x00" * 7}, "xy has 7 bytes"),
         ({"ctrl": b""}, "ctrl has 0 bytes"),
-        ({"xy_shift": 4}, "xy_shift = 4 not in 0..3"),
+        ({"xy_shift": 5}, "xy_shift = 5 not in 0..4"),
         ({"xy_shift": 1.0}, "xy_shift is not an int"),
     ]
     for change, match in cases:
@@ -847,8 +860,7 @@ def test_limits_are_exported():
 
 CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
 VERSION_1 = sorted((Path(__file__).parent / "data" / "v1").glob("*.tpsv"))
-OLD_VERSIONS = VERSION_1 + sorted((Path(__file__).parent / "data" / "v2").glob("*.tpsv")) + sorted(
-    (Path(__file__).parent / "data" / "v3").glob("*.tpsv"))
+OLD_VERSIONS = VERSION_1 + [p for v in ("v2", "v3", "v4") for p in sorted((Path(__file__).parent / "data" / v).glob("*.tpsv"))]
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
@@ -859,8 +871,8 @@ def test_reencoding_a_sample_file_gives_its_bytes(path):
 
 
 @pytest.mark.parametrize("path", OLD_VERSIONS, ids=lambda p: f"{p.parent.name}-{p.stem}")
-def test_old_version_files_are_read_and_written_back_as_version_4(path):
-    """docs/FORMAT.md, Versions: a version-1, -2 or -3 file decodes as it always did; encoding writes version 4, same model."""
+def test_old_version_files_are_read_and_written_back_as_version_5(path):
+    """docs/FORMAT.md, Versions: a version-1 to -4 file decodes as it always did; encoding writes version 5, same model."""
     data = path.read_bytes()
     version = int(path.parent.name[1:])
     assert struct.unpack_from("<H", data, 8)[0] == version
@@ -868,11 +880,13 @@ def test_old_version_files_are_read_and_written_back_as_version_4(path):
     assert (m.detail is None) == (version < 3 or struct.unpack_from("<H", data, 10)[0] == 0)
     assert not any(r.transparent for r in m.regions)
     again = codec.encode(m)
-    assert struct.unpack_from("<H", again, 8)[0] == 4
-    # the same flags (detail or not), and from version 3 on the same bytes after the version field
+    assert struct.unpack_from("<H", again, 8)[0] == 5
+    # the same flags (detail or not), and from version 3 on the same sections but the regions
+    # (whose outlines are now counted in 1/16 px: xy_shift one more)
     assert struct.unpack_from("<H", again, 10)[0] == struct.unpack_from("<H", data, 10)[0]
-    if version == 3:
-        assert again[10:68] == data[10:68] and again[72:] == data[72:]
+    if version >= 3:
+        sizes, before = codec.section_sizes(again), codec.section_sizes(data)
+        assert {k: v for k, v in sizes.items() if k != "regions"} == {k: v for k, v in before.items() if k != "regions"}
     assert_models_identical(codec.decode(again), m)
     # shared borders are stored once: never larger than the version-1 file's outlines
     assert codec.section_sizes(again)["regions"] <= codec.section_sizes(data)["regions"] + 16

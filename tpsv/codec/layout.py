@@ -18,7 +18,7 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 4
+VERSION = 5
 #: Header flag (version 3): a detail section follows the features section,
 #: preceded by its compressed and raw sizes (two little-endian uint32).
 FLAG_DETAIL = 1

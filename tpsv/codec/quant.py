@@ -19,8 +19,8 @@ from ..errors import TpsvFormatError
 from ..model import CURVILINEAR, Features, Model, Params, Patch, Region
 from . import layout
 
-#: Outline vertices are stored in units of 1/OUTLINE_SCALE px.
-OUTLINE_SCALE = 8
+#: Outline vertices are stored in units of 1/OUTLINE_SCALE px (1/8 before format version 5).
+OUTLINE_SCALE = 16
 #: Control vectors are stored in units of 1/CTRL_SCALE px.
 CTRL_SCALE = 16
 #: Edge widths are stored in units of 1/BLUR_SCALE px, at most MAX_BLUR of them.
@@ -72,7 +72,7 @@ class Quantized:
     vert_counts : ndarray, shape (P,), int64
         Vertices per polygon, all regions in order.
     xy : ndarray, shape (V, 2), int32
-        Outline vertices in 1/8 px.
+        Outline vertices in 1/16 px (``OUTLINE_SCALE``).
     ctrl : ndarray, shape (C * 8,), int32
         Control vectors in 1/16 px: each region's ``(M, N, 4, 2)`` array,
         flattened in C order, regions concatenated.

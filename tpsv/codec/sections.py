@@ -29,7 +29,9 @@ LAB_LAGS = (1, 2)
 MAX_LAB_LAG = 8
 #: Outline coordinates are stored divided by ``2**xy_shift``, the largest power
 #: of two (at most ``2**MAX_XY_SHIFT``) dividing all of them.
-MAX_XY_SHIFT = 3
+MAX_XY_SHIFT = 4
+#: Versions before 5 store outline coordinates in 1/8 px, not 1/16: one more shift.
+OLD_XY_UNIT_SHIFT = 1
 #: Lag of outline and control-grid coordinates: neighbours along the polygon
 #: or along the grid row.
 GEOMETRY_LAG = 1
@@ -331,16 +333,17 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
                 f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {v}"
             )
         stored = v
-    shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT, name)
+    shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT if h.version >= 5 else MAX_XY_SHIFT - 1, name)
     xy_buf = _expect_bin(obj, "xy", 8 * stored, name)
     xy = np.stack([
         undelta_zigzag(from_planes(xy_buf[4 * stored * k:4 * stored * (k + 1)], stored, 4), 4, GEOMETRY_LAG)
         for k in range(2)
     ], axis=1).astype(np.int64)
-    lim = 2**31 >> shift
+    unit = shift + (0 if h.version >= 5 else OLD_XY_UNIT_SHIFT)
+    lim = 2**31 >> unit
     if stored and (xy.min() < -lim or xy.max() >= lim):
         raise TpsvFormatError(f"section {name}: outline coordinate beyond the 32-bit range after xy_shift {shift}")
-    xy = (xy << shift).astype(np.int32)
+    xy = (xy << unit).astype(np.int32)
     if h.version >= 2:
         vert_counts, xy = chains.assemble(chain_counts, xy, ref_counts, refs, v)
     c = 8 * h.ctrl_points

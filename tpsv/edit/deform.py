@@ -98,7 +98,7 @@ from ..rendering.pixelmap import FRONT_KEY, draw_order
 
 #: Outline edges are split to at most this length (px) before a non-affine map.
 SUBDIVIDE_PX = 1.0
-#: Tolerance (px) of the simplification after a non-affine map (half the file's 1/8 px quantum).
+#: Tolerance (px) of the simplification after a non-affine map (a file quantum, 1/16 px).
 SIMPLIFY_PX = 1.0 / 16.0
 #: Outline vertices of other regions within this distance (px) of a deformed region's border follow it.
 GLUE_PX = 1.0

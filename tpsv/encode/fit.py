@@ -130,13 +130,17 @@ class FitTarget:
     sub: int
 
 
-def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1, skip=None) -> FitTarget:
+def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1, skip=None,
+               replace=None) -> FitTarget:
     """A :class:`FitTarget` from the image and the pixel maps at scale 1 (``pixel_maps``).
 
-    ``skip``: flat pixel indices left out of the fit; the pixels a border
-    crosses, whose colour the renderer mixes from both sides
-    (``tpsv.rendering.borders``): fitted to them, a region's TPS would reach
-    for its neighbour's colour and bleed it into its own fill.
+    ``skip``: flat pixel indices left out of the fit. ``replace``: ``(pixels,
+    colours)``, flat indices and the sRGB colours fitted there instead of the
+    image's. Both are for the pixels a border crosses, whose colour the
+    renderer mixes from both sides (``tpsv.rendering.borders``): fitted to the
+    image there, a region's TPS would reach for its neighbour's colour and
+    bleed it into its own fill; left out, nothing holds the TPS up to its
+    outline, and a magnified render shows whatever it does there.
     """
     rgb = np.asarray(rgb)
     if rgb.dtype == np.uint8:
@@ -150,7 +154,13 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
         keep &= ~np.isin(rows, np.asarray(skip))
     rows = rows[keep]
     reg = reg[keep]
-    lab = srgb_to_lab(np.asarray(rgb, np.float32)[..., :3].reshape(-1, 3)[rows][None])[0].astype(np.float64)
+    colours = np.asarray(rgb, np.float32)[..., :3].reshape(-1, 3)[rows]
+    if replace is not None and len(replace[0]):
+        at = np.searchsorted(rows, np.asarray(replace[0]))
+        ok = at < len(rows)
+        ok[ok] = rows[at[ok]] == np.asarray(replace[0])[ok]
+        colours[at[ok]] = np.asarray(replace[1], np.float32)[ok]
+    lab = srgb_to_lab(colours[None])[0].astype(np.float64)
     J = lab_to_srgb_jacobian(lab)
     W = np.einsum("nij,nik->njk", J, J)
     return FitTarget(

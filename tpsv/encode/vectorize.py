@@ -91,6 +91,7 @@ from ..errors import TpsvError
 from ..geometry import segment
 from ..geometry.edgewidth import edge_widths
 from ..geometry.regions import build_regions
+from ..geometry.subpixel import own_side_colours
 from ..model import Features, Model, Params, Region
 from ..rendering.pixelmap import PixelMap
 from ..rendering.raster import render, shade
@@ -201,8 +202,12 @@ class Geometry:
 
     def fit_target(self, rgb: np.ndarray, sub: int = 1):
         """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
-        return self._cached("fit", rgb, (int(sub),),
-                            lambda: fit_target(rgb, self.index, self.pixel_st(), sub, skip=self.mixed_pixels()))
+        def make():
+            mixed = self.mixed_pixels()
+            colours, ok = own_side_colours(rgb, self.index, mixed, near=self.border_mix().pixels)
+            return fit_target(rgb, self.index, self.pixel_st(), sub, skip=mixed[~ok], replace=(mixed[ok], colours[ok]))
+
+        return self._cached("fit", rgb, (int(sub),), make)
 
     def border_mix(self):
         """The anti-aliased border pixels at scale 1, as the renderer finds them (:mod:`tpsv.gpu.coverage`; cached)."""

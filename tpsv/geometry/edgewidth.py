@@ -51,11 +51,12 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
 def _shared_edges(regions) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """``(a, b, start, end)`` of every outline edge regions ``a < b`` share (exact vertices)."""
     from ..codec import chains
+    from ..codec.quant import OUTLINE_SCALE
 
     polys, owner = [], []
     for r, reg in enumerate(regions):
         for p in reg.outline:
-            polys.append(np.rint(np.asarray(p, np.float64) * 8).astype(np.int64))
+            polys.append(np.rint(np.asarray(p, np.float64) * OUTLINE_SCALE).astype(np.int64))
             owner.append(r)
     part = chains.partners(polys)
     out = []
@@ -64,7 +65,7 @@ def _shared_edges(regions) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
         for e in np.flatnonzero(pt[:, 0] >= 0):
             a, b = owner[i], owner[int(pt[e, 0])]
             if a < b:
-                out.append((a, b, p[e] / 8.0, q[e] / 8.0))
+                out.append((a, b, p[e] / OUTLINE_SCALE, q[e] / OUTLINE_SCALE))
     return out
 
 

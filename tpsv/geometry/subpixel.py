@@ -47,6 +47,12 @@ from . import outline
 
 #: Side of the window (px) whose interior pixels give each side's colour.
 WINDOW = 5
+#: Ridge (px^2) on the slope of each side's colour plane: a side seen over less spread than this leans on its mean.
+SLOPE_RIDGE = 1.0
+#: Gaussian (px) weighting the window's pixels for a border pixel's normal.
+NORMAL_SIGMA = 1.2
+#: Coverage this close to 0 or 1 reads as a pixel wholly on one side.
+SATURATED = 0.03
 #: Colour difference (sRGB, 0-1, Euclidean) above which a border is read from the image alone.
 CONTRAST = 0.08
 #: Gaussian (px) that smooths a region's mask where the colours cannot tell.
@@ -55,13 +61,135 @@ SMOOTH_SIGMA = 0.7
 TOLERANCE = 0.06
 #: Outline vertices are rounded to 1/GRID px, the ``.tpsv`` file's outline quantum
 #: (``tpsv.codec.quant.OUTLINE_SCALE``; a test keeps them equal).
-GRID = 8
+GRID = 16
+#: A contour turning by more than this (degrees) between straight runs has a corner.
+CORNER_TURN = 35.0
+#: Arc (px) over which a contour's turning is measured.
+CORNER_ARM = 2.0
+#: The straight runs either side of a corner: (from, to) px along the contour, tried in turn.
+CORNER_RUNS = ((2.0, 6.0), (0.7, 3.0))
+#: Largest distance (px) of a run's point from its line for the run to be straight.
+CORNER_STRAIGHT = 0.08
+#: A point this close (px) to a corner's line is on it, not on the rounding.
+CORNER_ON_LINE = 0.04
+#: Outline vertices turning less than this (degrees) slide along the border onto the grid point nearest to it.
+SNAP_TURN = 30.0
+#: Cost of sliding a vertex along its border, relative to moving it across.
+SNAP_SLIDE = 0.25
+#: Grid steps (of 1/GRID px) between the vertices of loose stretches (1/4 px: they are known to half a pixel).
+LOOSE_STEP = 4
 #: RDP tolerance where they cannot (low contrast, texture): the label map's own precision.
 LOOSE_TOLERANCE = 0.5
 #: Runs of a contour of their own shorter than this (px) are junctions of three or more regions.
 JUNCTION = 2.0
 
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+
+
+def _coverage_distance(a: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Signed distance (px) from a pixel's centre to a straight border that covers ``a`` of
+    the pixel, its normal along ``normal`` (positive: the centre is on the covered side).
+
+    A unit square seen along a normal at angle ``t`` spreads over a trapezoid
+    (the sum of two uniforms of widths ``|cos t|`` and ``|sin t|``); the coverage
+    is its distribution function, inverted here. A pixel wholly covered or wholly
+    uncovered gets the half width of the trapezoid (the least distance it implies).
+    """
+    c = np.abs(normal[:, 0])
+    s = np.abs(normal[:, 1])
+    L = np.maximum(np.hypot(c, s), 1e-12)
+    w1 = np.maximum(c, s) / L
+    w2 = np.where(L > 1e-12, np.minimum(c, s) / L, 0.0)
+    mid = 0.5 * (w1 - w2) / w1  # coverage where the linear part ends
+    lo = a < 0.5 - mid
+    hi = a > 0.5 + mid
+    d = w1 * (a - 0.5)
+    tail = np.sqrt(2.0 * w1 * w2 * np.where(lo, a, 1.0 - a))
+    d = np.where(lo, -0.5 * (w1 + w2) + tail, d)
+    return np.where(hi, 0.5 * (w1 + w2) - tail, d)
+
+
+class PlaneFit:
+    """Per border pixel, a least-squares plane ``c(d) = c0 + G d`` through colours at offsets ``d`` (px).
+
+    The slope is shrunk towards 0 (ridge :data:`SLOPE_RIDGE`), so a side seen
+    at a few pixels in a line falls back to their mean.
+    """
+
+    def __init__(self, n: int):
+        self.count = np.zeros(n)
+        self.pos = np.zeros((n, 2))
+        self.second = np.zeros((n, 2, 2))
+        self.col = np.zeros((n, 3))
+        self.cross = np.zeros((n, 2, 3))
+        self.square = np.zeros(n)
+
+    def add(self, dx: int, dy: int, col: np.ndarray, sel: np.ndarray) -> None:
+        w = sel.astype(np.float64)
+        d = np.array([dx, dy], np.float64)
+        self.count += w
+        self.pos += w[:, None] * d
+        self.second += w[:, None, None] * np.outer(d, d)
+        wc = col * w[:, None]
+        self.col += wc
+        self.cross += d[None, :, None] * wc[:, None, :]
+        self.square += (col * col).sum(axis=1) * w
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plane's colour at offset 0, and the spread (rms) of the colours about the plane."""
+        k = np.maximum(self.count, 1.0)
+        m = self.pos / k[:, None]
+        mc = self.col / k[:, None]
+        cov = self.second / k[:, None, None] - m[:, :, None] * m[:, None, :]
+        vc = self.cross / k[:, None, None] - m[:, :, None] * mc[:, None, :]
+        slope = np.linalg.solve(cov + SLOPE_RIDGE * np.eye(2), vc)  # (n, 2, 3)
+        at0 = mc - np.einsum("ni,nic->nc", m, slope)
+        var = self.square / k - (mc * mc).sum(axis=1) - np.einsum("nic,nic->n", slope, vc)
+        return at0, np.sqrt(np.maximum(var, 0.0))
+
+
+def own_side_colours(rgb: np.ndarray, index: np.ndarray, pixels: np.ndarray, near=None,
+                     window: int = WINDOW) -> tuple[np.ndarray, np.ndarray]:
+    """The colour each of ``pixels`` would have wholly inside its own region.
+
+    A pixel a border crosses mixes two regions' colours. Its own region's
+    colour there is the plane through that region's unmixed pixels (neither in
+    ``pixels`` nor in ``near``, the pixels a border touches at all) in the
+    ``window`` x ``window`` square around it, read at its centre.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float
+    index : ndarray (H, W) int
+        Region of every pixel.
+    pixels : ndarray (n,) int
+        Flat indices ``y * W + x`` of the mixed pixels.
+
+    Returns
+    -------
+    colours : ndarray (n, 3) float64
+    ok : ndarray (n,) bool
+        False where no unmixed pixel of the region is in the window.
+    """
+    H, W = index.shape
+    pixels = np.asarray(pixels, np.int64)
+    ys, xs = pixels // W, pixels % W
+    mixed = np.zeros(H * W, bool)
+    mixed[pixels] = True
+    if near is not None:
+        mixed[np.asarray(near, np.int64)] = True
+    mixed = mixed.reshape(H, W)
+    own = index[ys, xs]
+    fit = PlaneFit(len(pixels))
+    h = window // 2
+    for dy in range(-h, h + 1):
+        for dx in range(-h, h + 1):
+            qy, qx = np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)
+            inside = (ys + dy == qy) & (xs + dx == qx)
+            sel = inside & (index[qy, qx] == own) & ~mixed[qy, qx]
+            fit.add(dx, dy, np.asarray(rgb[qy, qx, :3], np.float64), sel)
+    colours, _ = fit.solve()
+    return np.clip(colours, 0.0, 1.0), fit.count > 0
 
 
 class BorderReading:
@@ -98,6 +226,7 @@ class BorderReading:
             border |= (nb != comp) & (nb >= 0)
         self.across = np.full((H, W), -1, np.int32)
         self.alpha = np.ones((H, W))
+        self.level = np.ones((H, W))
         self.trust = np.zeros((H, W))
         self.near_trust = self.trust
         ys, xs = np.nonzero(border)
@@ -117,39 +246,43 @@ class BorderReading:
             count[take] = c[take]
         own = comp[ys, xs]
         self.across[ys, xs] = best
-        # side colours: interior (non-border) pixels of each side in the window
+        # side colours: interior (non-border) pixels of each side in the window, each
+        # side's colour a plane fitted to them and read at the border pixel (a mean
+        # alone would be off by the gradient times the window's offset from the pixel)
         h = WINDOW // 2
         cpad = np.pad(comp, h, mode="constant", constant_values=-1)
         bpad = np.pad(border, h, mode="constant", constant_values=True)
-        offs = [(dy, dx) for dy in range(-h, h + 1) for dx in range(-h, h + 1)]
         n = len(ys)
-        sums = {key: np.zeros((n, 3)) for key in ("a", "b", "fa", "fb")}
-        squares = {key: np.zeros(n) for key in ("a", "b", "fa", "fb")}
-        counts = {key: np.zeros(n) for key in ("a", "b", "fa", "fb")}
-        for dy, dx in offs:
-            cc = cpad[ys + h + dy, xs + h + dx]
-            bb = bpad[ys + h + dy, xs + h + dx]
-            col = rgb[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)].astype(np.float64)  # edge padding
-            sq = (col * col).sum(axis=1)
-            for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == best) & ~bb), ("fa", cc == own), ("fb", cc == best)):
-                sums[key] += col * sel[:, None]
-                squares[key] += sq * sel
-                counts[key] += sel
+        fits = {key: PlaneFit(n) for key in ("a", "b", "fa", "fb")}
+        normal = np.zeros((n, 2))  # towards the own side: Gaussian-weighted offsets of own minus across pixels
+        for dy in range(-h, h + 1):
+            for dx in range(-h, h + 1):
+                cc = cpad[ys + h + dy, xs + h + dx]
+                bb = bpad[ys + h + dy, xs + h + dx]
+                g = np.exp(-(dx * dx + dy * dy) / (2.0 * NORMAL_SIGMA**2))
+                side_sign = (cc == own).astype(np.float64) - (cc == best)
+                normal += (g * side_sign)[:, None] * np.array([dx, dy], np.float64)
+                col = rgb[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)].astype(np.float64)  # edge padding
+                for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == best) & ~bb), ("fa", cc == own),
+                                 ("fb", cc == best)):
+                    fits[key].add(dx, dy, col, sel)
 
         def side(inner, whole):
             # no interior pixel of a side in the window (thin parts): all its pixels there
-            use = (counts[inner] > 0)[:, None]
-            k = np.where(use[:, 0], counts[inner], np.maximum(counts[whole], 1))
-            mu = np.where(use, sums[inner], sums[whole]) / np.maximum(k, 1)[:, None]
-            var = np.where(use[:, 0], squares[inner], squares[whole]) / np.maximum(k, 1) - (mu * mu).sum(axis=1)
-            return mu, np.sqrt(np.maximum(var, 0.0))
+            use = fits[inner].count > 0
+            mu_i, sd_i = fits[inner].solve()
+            mu_w, sd_w = fits[whole].solve()
+            return np.where(use[:, None], mu_i, mu_w), np.where(use, sd_i, sd_w)
 
         mu_a, sd_a = side("a", "fa")
         mu_b, sd_b = side("b", "fb")
         d = mu_a - mu_b
         dd = (d * d).sum(axis=1)
         a = ((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
-        self.alpha[ys, xs] = np.clip(a, 0.0, 1.0)
+        a = np.clip(a, 0.0, 1.0)
+        self.alpha[ys, xs] = a
+        self.level[ys, xs] = 0.5 + _coverage_distance(a, normal)
+        self._extrapolate(ys, xs, a, normal, own, best)
         # a side whose colour varies (texture) is a poor reference: trust fades out as its
         # spread goes from a quarter to a half of the contrast
         contrast = np.sqrt(dd)
@@ -157,13 +290,53 @@ class BorderReading:
         self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
 
+    def _extrapolate(self, ys, xs, a, normal, own, across) -> None:
+        """A pixel wholly on one side (alpha 0 or 1) only says its centre is at least the
+        pixel's half width from the border; where a neighbour on the same border is
+        partly covered, its distance carried along the normal says how far."""
+        H, W = self.level.shape
+        u = normal / np.maximum(np.hypot(normal[:, 0], normal[:, 1]), 1e-12)[:, None]
+        partial = (a > SATURATED) & (a < 1.0 - SATURATED)
+        full = ~partial
+        if not full.any() or not partial.any():
+            return
+        index = np.full((H, W), -1, np.int64)
+        index[ys, xs] = np.arange(len(ys))
+        total = np.zeros(len(ys))
+        weight = np.zeros(len(ys))
+        fy, fx = ys[full], xs[full]
+        for dy, dx in _NEIGHBOURS:
+            qy, qx = fy + dy, fx + dx
+            ok = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
+            k = np.full(len(fy), -1, np.int64)
+            k[ok] = index[qy[ok], qx[ok]]
+            ok = k >= 0
+            ok[ok] = partial[k[ok]]
+            kk = k[ok]
+            i = np.flatnonzero(full)[ok]
+            same = (own[kk] == own[i]) & (across[kk] == across[i])
+            flip = (own[kk] == across[i]) & (across[kk] == own[i])
+            use = same | flip
+            kk, i = kk[use], i[use]
+            sign = np.where(same[use], 1.0, -1.0)
+            # the neighbour's distance from the border, towards its own side, carried to this pixel (offset -d)
+            dist = self.level[ys[kk], xs[kk]] - 0.5 - (u[kk, 0] * dx + u[kk, 1] * dy)
+            np.add.at(total, i, sign * dist)
+            np.add.at(weight, i, 1.0)
+        got = weight > 0
+        est = total[got] / weight[got]
+        cur = self.level[ys[got], xs[got]] - 0.5
+        # keep the side the colour says, and at least the half width it implies
+        est = np.where(np.sign(est) == np.sign(cur), np.where(np.abs(est) > np.abs(cur), est, cur), cur)
+        self.level[ys[got], xs[got]] = 0.5 + est
+
     def field(self, comp: np.ndarray, region: int, window: tuple[slice, slice]) -> np.ndarray:
         """The membership field ``m`` of ``region`` in ``window`` (rows, cols) of the image."""
         # m = w read + (1 - w) smooth, worked out in place (a window may be the whole image)
         sub = comp[window] == region
         smooth = ndimage.gaussian_filter(sub.astype(np.float64), SMOOTH_SIGMA, mode="nearest")
         across = self.across[window]
-        alpha = self.alpha[window]
+        alpha = self.level[window]
         trust = self.trust[window]
         # read from the colour: own border pixels facing one region, and that region's facing back
         m = 1.0 - alpha
@@ -520,9 +693,184 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
         flat, tols, changed = _close_cycles(flat, tols, W, H)
         if not changed:
             break
-    simple = iter(_simplify_together(flat, tols))
+    flat, tols = _sharpen_corners(flat, tols, W, H, tolerance)
+    simple = _simplify_together(flat, tols)
+    # where only the smoothed mask speaks, the border is known to half a pixel: a coarser grid there
+    steps = [np.where(_tolerances(reading, q, tolerance, W, H) > 2 * tolerance, LOOSE_STEP, 1) for q in simple]
+    simple = iter(_snap_to_grid(simple, W, H, steps))
     return [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
             for polys, r, box in zip(raw, regions, boxes)]
+
+
+def _arc(p: np.ndarray) -> np.ndarray:
+    """Arc length at each vertex of a closed polygon, then the perimeter."""
+    seg = np.diff(np.vstack([p, p[:1]]), axis=0)
+    return np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+
+
+def _line(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares line through points: a point on it, its unit direction, and the largest distance from it."""
+    q = q[np.lexsort((q[:, 1], q[:, 0]))]  # either direction of a shared border gives the same line
+    c = q.mean(axis=0)
+    _, _, vt = np.linalg.svd(q - c, full_matrices=False)
+    u = vt[0]
+    off = q - c
+    return c, u, float(np.abs(off[:, 0] * u[1] - off[:, 1] * u[0]).max())
+
+
+def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H: int,
+                     tolerance: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Corners the contours rounded off, put back where the straight borders meet.
+
+    The field is a distance to one straight border, which a pixel at a corner
+    is not: the contour cuts the corner by up to a pixel. Where a contour turns
+    by more than :data:`CORNER_TURN` degrees between two runs that are straight
+    (within :data:`CORNER_STRAIGHT` px over :data:`CORNER_ARM` px), shared with
+    one other region and read from the colours, the points in between are
+    replaced by the crossing of the two runs' lines, in both regions' contours.
+    """
+    from ..codec import chains
+
+    keys = _point_keys(polys)
+    part = chains.partners(keys)
+    edits: dict[int, list[tuple[set, np.ndarray]]] = {}
+    claimed: set = set()
+    for i, p in enumerate(polys):
+        n = len(p)
+        if n < 12:
+            continue
+        s = _arc(p)
+        total = s[-1]
+        ext = np.concatenate([s[:-1] - total, s[:-1], s[:-1] + total])
+        px, py = np.tile(p[:, 0], 3), np.tile(p[:, 1], 3)
+
+        def at(arc):
+            return np.stack([np.interp(arc, ext, px), np.interp(arc, ext, py)], axis=1)
+
+        b = p - at(s[:-1] - CORNER_ARM)
+        a = at(s[:-1] + CORNER_ARM) - p
+        cos = (a * b).sum(axis=1) / np.maximum(np.hypot(*a.T) * np.hypot(*b.T), 1e-12)
+        turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        taken: list[float] = []
+        for c in np.argsort(-turn):
+            if turn[c] < CORNER_TURN:
+                break
+            if any(abs((s[c] - t + total / 2) % total - total / 2) < 2 * CORNER_ARM for t in taken):
+                continue
+            taken.append(s[c])
+            rel = (s[:-1] - s[c] + total / 2) % total - total / 2  # signed arc from the corner
+            # the runs either side: long ones first (the rounding can reach 2-3 px along
+            # the sides of a sharp corner), short ones for small shapes
+            for near, far in CORNER_RUNS:
+                side_b = np.flatnonzero((rel > -far) & (rel < -near))
+                side_a = np.flatnonzero((rel > near) & (rel < far))
+                if len(side_b) < 3 or len(side_a) < 3 or total < 4 * far:
+                    continue
+                cb, ub, eb = _line(p[side_b])
+                ca, ua, ea = _line(p[side_a])
+                if max(eb, ea) <= CORNER_STRAIGHT:
+                    break
+            else:
+                continue
+            if abs(ub[0] * ua[1] - ub[1] * ua[0]) < np.sin(np.radians(CORNER_TURN)):
+                continue
+            # the crossing: cb + ub x = ca + ua y
+            x = np.linalg.solve(np.array([ub, -ua]).T, ca - cb)[0]
+            corner = cb + ub * x
+            if np.hypot(*(corner - p[c])) > 1.5 or not (0 < corner[0] < W and 0 < corner[1] < H):
+                continue
+            # the points the rounding moved off the two lines
+            db = np.abs((p - cb)[:, 0] * ub[1] - (p - cb)[:, 1] * ub[0])
+            da = np.abs((p - ca)[:, 0] * ua[1] - (p - ca)[:, 1] * ua[0])
+            # from the farthest point before the corner that is off its line to the farthest after
+            off_b = np.flatnonzero((rel > -far) & (rel <= 0) & (db > CORNER_ON_LINE))
+            off_a = np.flatnonzero((rel < far) & (rel >= 0) & (da > CORNER_ON_LINE))
+            lo = c - int(((c - off_b) % n).max(initial=0))
+            hi = c + int(((off_a - c) % n).max(initial=0))
+            zone = np.arange(lo, hi + 1) % n
+            around = np.arange(lo - len(side_b), hi + len(side_a) + 1) % n
+            twin = part[i][around[:-1], 0]
+            if (twin < 0).any() or (twin != twin[0]).any() or (tols[i][around] > 1.5 * tolerance).any():
+                continue
+            zkeys = {tuple(k) for k in keys[i][zone]}
+            if zkeys & claimed:
+                continue
+            claimed |= zkeys
+            for j in (i, int(twin[0])):
+                edits.setdefault(j, []).append((zkeys, corner))
+    polys, tols = list(polys), list(tols)
+    for j, todo in edits.items():
+        kj = [tuple(k) for k in keys[j]]
+        p, t = polys[j], tols[j]
+        drop = np.zeros(len(p), bool)
+        first: dict[int, np.ndarray] = {}
+        for zkeys, corner in todo:
+            idx = np.array([k in zkeys for k in kj])
+            if not idx.any():
+                continue
+            # where the run starts, going round (the zone may wrap past vertex 0)
+            start = int(np.flatnonzero(idx & ~np.roll(idx, 1))[0])
+            drop |= idx
+            first[start] = corner
+        new_p, new_t = [], []
+        for k in range(len(p)):
+            if k in first:
+                new_p.append(first[k])
+                new_t.append(0.0)
+            if not drop[k]:
+                new_p.append(p[k])
+                new_t.append(t[k])
+        polys[j], tols[j] = np.array(new_p), np.array(new_t)
+    return polys, tols
+
+
+def _snap_to_grid(polys: list[np.ndarray], W: int, H: int, steps: list[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Vertices on the file's 1/GRID px grid (every ``steps``-th point of it), each moved to where its border is.
+
+    Plain rounding shifts a vertex across its border by up to half a grid step
+    (0.036 px rms at 1/8), which is most of the error left on a clean edge. Along
+    the border a vertex may slide freely, so each vertex where the outline runs
+    on smoothly takes, of the 3 x 3 grid points around it, the one nearest to
+    the line through it along the outline (sliding is charged a little, so a
+    vertex stays put when nothing is to gain). Corners, junctions and the
+    frame's points are rounded. Both sides of a shared border see the same line
+    and choose alike; a vertex that would still come out differently in two
+    outlines is rounded in all of them.
+    """
+    offsets = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], np.float64)
+    steps = [np.ones(len(p)) if steps is None else np.asarray(s, np.float64) for p, s in
+             zip(polys, steps or [None] * len(polys))]
+    chosen = []
+    for p, step in zip(polys, steps):
+        step = step[:, None]
+        base = np.round(p * GRID / step) * step
+        before, after = p - np.roll(p, 1, axis=0), np.roll(p, -1, axis=0) - p
+        lb = np.hypot(before[:, 0], before[:, 1])
+        la = np.hypot(after[:, 0], after[:, 1])
+        smooth = (before * after).sum(axis=1) > np.cos(np.radians(SNAP_TURN)) * lb * la
+        smooth &= (p[:, 0] > 0) & (p[:, 0] < W) & (p[:, 1] > 0) & (p[:, 1] < H)
+        # the line's direction, the same either way round up to its sign
+        t = before / np.maximum(lb, 1e-12)[:, None] + after / np.maximum(la, 1e-12)[:, None]
+        t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
+        cand = base[:, None, :] + offsets[None] * step[:, None]
+        off = cand / GRID - p[:, None, :]
+        across = np.abs(off[..., 0] * t[:, None, 1] - off[..., 1] * t[:, None, 0])
+        along = np.abs(off[..., 0] * t[:, None, 0] + off[..., 1] * t[:, None, 1])
+        best = np.argmin(across + SNAP_SLIDE * along, axis=1)
+        q = np.where(smooth[:, None], cand[np.arange(len(p)), best], base)
+        chosen.append(q)
+    # a vertex shared by outlines that disagree is rounded in all of them
+    picks: dict = {}
+    keys = _point_keys(polys)
+    for k, q in zip(keys, chosen):
+        for key, v in zip(map(tuple, k), map(tuple, q)):
+            picks.setdefault(key, set()).add(v)
+    out = []
+    for p, k, q, step in zip(polys, keys, chosen, steps):
+        torn = np.array([len(picks[key]) > 1 for key in map(tuple, k)], bool)
+        q = np.where(torn[:, None], np.round(p * GRID / step[:, None]) * step[:, None], q)
+        out.append(q / GRID)
+    return out
 
 
 def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
@@ -551,4 +899,5 @@ def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
-__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines"]
+__all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "PlaneFit", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines",
+           "own_side_colours"]
