@@ -49,6 +49,8 @@ from . import outline
 WINDOW = 5
 #: Ridge (px^2) on the slope of each side's colour plane: a side seen over less spread than this leans on its mean.
 SLOPE_RIDGE = 1.0
+#: Border pixels whose sides are read at once (bounds the memory of the reading).
+SIDE_CHUNK = 1 << 16
 #: Gaussian (px) weighting the window's pixels for a border pixel's normal.
 NORMAL_SIGMA = 1.2
 #: Coverage this close to 0 or 1 reads as a pixel wholly on one side.
@@ -192,6 +194,42 @@ def own_side_colours(rgb: np.ndarray, index: np.ndarray, pixels: np.ndarray, nea
     return np.clip(colours, 0.0, 1.0), fit.count > 0
 
 
+def _sides(comp, border, rgb, ys, xs, own, across):
+    """Both sides' colours at border pixels ``(ys, xs)`` (own region, region across), their spread, and
+    the border's normal (towards the own side: Gaussian-weighted offsets of own minus across pixels).
+
+    Each side's colour is a plane fitted to its interior (non-border) pixels in the
+    window and read at the border pixel: a mean alone would be off by the gradient
+    times the window's offset from the pixel. A side with no interior pixel there
+    (thin parts) takes all its pixels.
+    """
+    H, W = comp.shape
+    h = WINDOW // 2
+    n = len(ys)
+    fits = {key: PlaneFit(n) for key in ("a", "b", "fa", "fb")}
+    normal = np.zeros((n, 2))
+    for dy in range(-h, h + 1):
+        for dx in range(-h, h + 1):
+            qy, qx = ys + dy, xs + dx
+            inside = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
+            qy, qx = np.clip(qy, 0, H - 1), np.clip(qx, 0, W - 1)
+            cc = np.where(inside, comp[qy, qx], -1)
+            bb = ~inside | border[qy, qx]
+            g = np.exp(-(dx * dx + dy * dy) / (2.0 * NORMAL_SIGMA**2))
+            normal += (g * ((cc == own).astype(np.float64) - (cc == across)))[:, None] * np.array([dx, dy], np.float64)
+            col = rgb[qy, qx].astype(np.float64)
+            for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == across) & ~bb), ("fa", cc == own),
+                             ("fb", cc == across)):
+                fits[key].add(dx, dy, col, sel)
+    out = []
+    for inner, whole in (("a", "fa"), ("b", "fb")):
+        use = fits[inner].count > 0
+        mu_i, sd_i = fits[inner].solve()
+        mu_w, sd_w = fits[whole].solve()
+        out += [np.where(use[:, None], mu_i, mu_w), np.where(use, sd_i, sd_w)]
+    return (*out, normal)
+
+
 class BorderReading:
     """Every border pixel of a component map: the region across and the colour reading.
 
@@ -246,36 +284,13 @@ class BorderReading:
             count[take] = c[take]
         own = comp[ys, xs]
         self.across[ys, xs] = best
-        # side colours: interior (non-border) pixels of each side in the window, each
-        # side's colour a plane fitted to them and read at the border pixel (a mean
-        # alone would be off by the gradient times the window's offset from the pixel)
-        h = WINDOW // 2
-        cpad = np.pad(comp, h, mode="constant", constant_values=-1)
-        bpad = np.pad(border, h, mode="constant", constant_values=True)
+        # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile)
         n = len(ys)
-        fits = {key: PlaneFit(n) for key in ("a", "b", "fa", "fb")}
-        normal = np.zeros((n, 2))  # towards the own side: Gaussian-weighted offsets of own minus across pixels
-        for dy in range(-h, h + 1):
-            for dx in range(-h, h + 1):
-                cc = cpad[ys + h + dy, xs + h + dx]
-                bb = bpad[ys + h + dy, xs + h + dx]
-                g = np.exp(-(dx * dx + dy * dy) / (2.0 * NORMAL_SIGMA**2))
-                side_sign = (cc == own).astype(np.float64) - (cc == best)
-                normal += (g * side_sign)[:, None] * np.array([dx, dy], np.float64)
-                col = rgb[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)].astype(np.float64)  # edge padding
-                for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == best) & ~bb), ("fa", cc == own),
-                                 ("fb", cc == best)):
-                    fits[key].add(dx, dy, col, sel)
-
-        def side(inner, whole):
-            # no interior pixel of a side in the window (thin parts): all its pixels there
-            use = fits[inner].count > 0
-            mu_i, sd_i = fits[inner].solve()
-            mu_w, sd_w = fits[whole].solve()
-            return np.where(use[:, None], mu_i, mu_w), np.where(use, sd_i, sd_w)
-
-        mu_a, sd_a = side("a", "fa")
-        mu_b, sd_b = side("b", "fb")
+        mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
+        sd_a, sd_b = np.empty(n), np.empty(n)
+        for a0 in range(0, n, SIDE_CHUNK):
+            k = slice(a0, a0 + SIDE_CHUNK)
+            mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], best[k])
         d = mu_a - mu_b
         dd = (d * d).sum(axis=1)
         a = ((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
