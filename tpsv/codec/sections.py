@@ -333,13 +333,14 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
                 f"section {name}: polygons hold {int(vert_counts.sum())} vertices, header says {v}"
             )
         stored = v
-    shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT if h.version >= 5 else MAX_XY_SHIFT - 1, name)
+    old_unit = 0 if h.version >= 5 else OLD_XY_UNIT_SHIFT
+    shift = _expect_int(obj, "xy_shift", 0, MAX_XY_SHIFT - old_unit, name)
     xy_buf = _expect_bin(obj, "xy", 8 * stored, name)
     xy = np.stack([
         undelta_zigzag(from_planes(xy_buf[4 * stored * k:4 * stored * (k + 1)], stored, 4), 4, GEOMETRY_LAG)
         for k in range(2)
     ], axis=1).astype(np.int64)
-    unit = shift + (0 if h.version >= 5 else OLD_XY_UNIT_SHIFT)
+    unit = shift + old_unit
     lim = 2**31 >> unit
     if stored and (xy.min() < -lim or xy.max() >= lim):
         raise TpsvFormatError(f"section {name}: outline coordinate beyond the 32-bit range after xy_shift {shift}")

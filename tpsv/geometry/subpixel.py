@@ -10,10 +10,14 @@ outline:
 * On a border pixel between regions A and B (its own region A, B the most
   frequent other region among its 8 neighbours), the pixel's colour ``c`` is
   read as a mix of the two sides: ``alpha = (c - mu_B) . (mu_A - mu_B) / |mu_A
-  - mu_B|^2`` (clipped to [0, 1]), ``mu`` the mean colours of the two regions'
-  interior pixels in a :data:`WINDOW` x :data:`WINDOW` window around it. An
-  anti-aliased or slightly blurred edge then puts the 0.5 level where the
-  colour is half way, not on the pixel edge.
+  - mu_B|^2`` (clipped to [0, 1]), ``mu`` each side's colour at the pixel: the
+  plane through that region's interior pixels in a :data:`WINDOW` x
+  :data:`WINDOW` window around it. ``alpha`` is that side's coverage of the
+  pixel; ``m = 0.5 + d``, ``d`` the distance from the pixel centre to a
+  straight border at the label map's angle that covers ``alpha`` of it, so
+  that the level 0.5 is exactly on a straight border (on the coverage itself it
+  was off by up to 0.05 px with the angle). A pixel wholly on one side takes
+  the distance its partly covered neighbours on the same border imply.
 * Where the two sides' colours are too close to tell (``|mu_A - mu_B|`` below
   :data:`CONTRAST`), ``m`` leans, in proportion, on the region's mask smoothed
   by a Gaussian of :data:`SMOOTH_SIGMA` px, whose level 0.5 follows pixel
@@ -31,9 +35,11 @@ their own), one region takes it. Gaps and overlaps between regions are then
 rare (a few output pixels at 4x on the samples), except where a region falls
 back to its traced outline (below).
 
-The curve is simplified by Ramer-Douglas-Peucker at :data:`TOLERANCE` px
-where the colours are trusted, easing to :data:`LOOSE_TOLERANCE` px where
-only the smoothed mask speaks (it is no more precise than the label map). A
+Corners, which no straight border describes, are put back where the straight
+runs either side cross. The curve is simplified by Ramer-Douglas-Peucker at
+:data:`TOLERANCE` px where the colours are trusted, easing to
+:data:`LOOSE_TOLERANCE` px where only the smoothed mask speaks (it is no more
+precise than the label map), and its vertices are put on the file's grid. A
 region whose fitted outline would lose it (a one-pixel line of a colour
 close to a neighbour's, say) keeps its traced outline.
 """
@@ -150,6 +156,17 @@ class PlaneFit:
         return at0, np.sqrt(np.maximum(var, 0.0))
 
 
+def _window(ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int], half: int):
+    """Every offset ``(dx, dy)`` of a ``2 half + 1`` square window around pixels ``(ys, xs)``, with the
+    neighbours' coordinates clipped to the image and whether each lies in it."""
+    H, W = shape
+    for dy in range(-half, half + 1):
+        for dx in range(-half, half + 1):
+            qy, qx = ys + dy, xs + dx
+            inside = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
+            yield dx, dy, np.clip(qy, 0, H - 1), np.clip(qx, 0, W - 1), inside
+
+
 def own_side_colours(rgb: np.ndarray, index: np.ndarray, pixels: np.ndarray, near=None,
                      window: int = WINDOW) -> tuple[np.ndarray, np.ndarray]:
     """The colour each of ``pixels`` would have wholly inside its own region.
@@ -183,13 +200,9 @@ def own_side_colours(rgb: np.ndarray, index: np.ndarray, pixels: np.ndarray, nea
     mixed = mixed.reshape(H, W)
     own = index[ys, xs]
     fit = PlaneFit(len(pixels))
-    h = window // 2
-    for dy in range(-h, h + 1):
-        for dx in range(-h, h + 1):
-            qy, qx = np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)
-            inside = (ys + dy == qy) & (xs + dx == qx)
-            sel = inside & (index[qy, qx] == own) & ~mixed[qy, qx]
-            fit.add(dx, dy, np.asarray(rgb[qy, qx, :3], np.float64), sel)
+    for dx, dy, qy, qx, inside in _window(ys, xs, (H, W), window // 2):
+        sel = inside & (index[qy, qx] == own) & ~mixed[qy, qx]
+        fit.add(dx, dy, np.asarray(rgb[qy, qx, :3], np.float64), sel)
     colours, _ = fit.solve()
     return np.clip(colours, 0.0, 1.0), fit.count > 0
 
@@ -203,24 +216,18 @@ def _sides(comp, border, rgb, ys, xs, own, across):
     times the window's offset from the pixel. A side with no interior pixel there
     (thin parts) takes all its pixels.
     """
-    H, W = comp.shape
-    h = WINDOW // 2
     n = len(ys)
     fits = {key: PlaneFit(n) for key in ("a", "b", "fa", "fb")}
     normal = np.zeros((n, 2))
-    for dy in range(-h, h + 1):
-        for dx in range(-h, h + 1):
-            qy, qx = ys + dy, xs + dx
-            inside = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
-            qy, qx = np.clip(qy, 0, H - 1), np.clip(qx, 0, W - 1)
-            cc = np.where(inside, comp[qy, qx], -1)
-            bb = ~inside | border[qy, qx]
-            g = np.exp(-(dx * dx + dy * dy) / (2.0 * NORMAL_SIGMA**2))
-            normal += (g * ((cc == own).astype(np.float64) - (cc == across)))[:, None] * np.array([dx, dy], np.float64)
-            col = rgb[qy, qx].astype(np.float64)
-            for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == across) & ~bb), ("fa", cc == own),
-                             ("fb", cc == across)):
-                fits[key].add(dx, dy, col, sel)
+    for dx, dy, qy, qx, inside in _window(ys, xs, comp.shape, WINDOW // 2):
+        cc = np.where(inside, comp[qy, qx], -1)
+        bb = ~inside | border[qy, qx]
+        g = np.exp(-(dx * dx + dy * dy) / (2.0 * NORMAL_SIGMA**2))
+        normal += (g * ((cc == own).astype(np.float64) - (cc == across)))[:, None] * np.array([dx, dy], np.float64)
+        col = rgb[qy, qx].astype(np.float64)
+        for key, sel in (("a", (cc == own) & ~bb), ("b", (cc == across) & ~bb), ("fa", cc == own),
+                         ("fb", cc == across)):
+            fits[key].add(dx, dy, col, sel)
     out = []
     for inner, whole in (("a", "fa"), ("b", "fb")):
         use = fits[inner].count > 0
@@ -246,6 +253,9 @@ class BorderReading:
         Region across the border (``-1`` off the border).
     alpha : ndarray (H, W) float64
         Share of the pixel's own region, read from its colour (1 off the border).
+    level : ndarray (H, W) float64
+        ``0.5 +`` the distance (px) from the pixel centre to the border, towards
+        its own side, that ``alpha`` implies (1 off the border).
     trust : ndarray (H, W) float64
         How far ``alpha`` is to be believed, in [0, 1] (0 off the border).
     near_trust : ndarray (H, W) float64
@@ -319,7 +329,8 @@ class BorderReading:
         index[ys, xs] = np.arange(len(ys))
         total = np.zeros(len(ys))
         weight = np.zeros(len(ys))
-        fy, fx = ys[full], xs[full]
+        fi = np.flatnonzero(full)
+        fy, fx = ys[fi], xs[fi]
         for dy, dx in _NEIGHBOURS:
             qy, qx = fy + dy, fx + dx
             ok = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
@@ -328,7 +339,7 @@ class BorderReading:
             ok = k >= 0
             ok[ok] = partial[k[ok]]
             kk = k[ok]
-            i = np.flatnonzero(full)[ok]
+            i = fi[ok]
             same = (own[kk] == own[i]) & (across[kk] == across[i])
             flip = (own[kk] == across[i]) & (across[kk] == own[i])
             use = same | flip
@@ -351,11 +362,11 @@ class BorderReading:
         sub = comp[window] == region
         smooth = ndimage.gaussian_filter(sub.astype(np.float64), SMOOTH_SIGMA, mode="nearest")
         across = self.across[window]
-        alpha = self.level[window]
+        level = self.level[window]
         trust = self.trust[window]
         # read from the colour: own border pixels facing one region, and that region's facing back
-        m = 1.0 - alpha
-        np.copyto(m, alpha, where=sub)
+        m = 1.0 - level
+        np.copyto(m, level, where=sub)
         facing = np.where(sub, across >= 0, across == region)
         w = np.where(facing, trust, 0.0)
         del facing
@@ -659,9 +670,9 @@ def _finish(polys: list[np.ndarray], comp: np.ndarray, region: int, box: tuple[s
     """Simplified contours on the file grid, or None when they would lose the region."""
     out = []
     for i, p in enumerate(polys):
-        # on the file's grid already: the encoder's scale-1 maps are then the decoded file's
-        s = np.round(p * GRID) / GRID
-        s = s[np.any(s != np.roll(s, 1, axis=0), axis=1)]
+        # on the file's grid already (_snap_to_grid): the encoder's scale-1 maps are then the
+        # decoded file's; points that snapped onto each other are one
+        s = p[np.any(p != np.roll(p, 1, axis=0), axis=1)]
         a = outline.signed_area(s)
         if len(s) < 3 or (a <= 0 if i == 0 else a >= 0):
             if i == 0:
@@ -739,8 +750,9 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
 
     The field is a distance to one straight border, which a pixel at a corner
     is not: the contour cuts the corner by up to a pixel. Where a contour turns
-    by more than :data:`CORNER_TURN` degrees between two runs that are straight
-    (within :data:`CORNER_STRAIGHT` px over :data:`CORNER_ARM` px), shared with
+    by more than :data:`CORNER_TURN` degrees (over :data:`CORNER_ARM` px) between
+    two runs that are straight (within :data:`CORNER_STRAIGHT` px, over one of
+    the stretches of :data:`CORNER_RUNS`), shared with
     one other region and read from the colours, the points in between are
     replaced by the crossing of the two runs' lines, in both regions' contours.
     """
@@ -853,12 +865,13 @@ def _snap_to_grid(polys: list[np.ndarray], W: int, H: int, steps: list[np.ndarra
     outlines is rounded in all of them.
     """
     offsets = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], np.float64)
-    steps = [np.ones(len(p)) if steps is None else np.asarray(s, np.float64) for p, s in
-             zip(polys, steps or [None] * len(polys))]
-    chosen = []
+    if steps is None:
+        steps = [np.ones(len(p)) for p in polys]
+    chosen, rounded = [], []
     for p, step in zip(polys, steps):
-        step = step[:, None]
+        step = np.asarray(step, np.float64)[:, None]
         base = np.round(p * GRID / step) * step
+        rounded.append(base)
         before, after = p - np.roll(p, 1, axis=0), np.roll(p, -1, axis=0) - p
         lb = np.hypot(before[:, 0], before[:, 1])
         la = np.hypot(after[:, 0], after[:, 1])
@@ -881,9 +894,9 @@ def _snap_to_grid(polys: list[np.ndarray], W: int, H: int, steps: list[np.ndarra
         for key, v in zip(map(tuple, k), map(tuple, q)):
             picks.setdefault(key, set()).add(v)
     out = []
-    for p, k, q, step in zip(polys, keys, chosen, steps):
+    for k, q, base in zip(keys, chosen, rounded):
         torn = np.array([len(picks[key]) > 1 for key in map(tuple, k)], bool)
-        q = np.where(torn[:, None], np.round(p * GRID / step[:, None]) * step[:, None], q)
+        q = np.where(torn[:, None], base, q)
         out.append(q / GRID)
     return out
 
