@@ -71,6 +71,15 @@ def test_coverage_distance_inverts_the_box_coverage(angle):
     assert np.abs(got - d).max() < 0.01
 
 
+def test_coverage_distance_without_a_normal_reads_the_coverage():
+    """A pixel whose neighbours surround it evenly has no normal: its distance is its coverage less a half."""
+    from tpsv.geometry.subpixel import _coverage_distance
+
+    a = np.array([0.0, 0.2, 0.5, 0.9, 1.0])
+    with np.errstate(all="raise"):
+        assert np.allclose(_coverage_distance(a, np.zeros((5, 2))), a - 0.5)
+
+
 def square_picture(size: int = 40, density: int = 32, angle: float = 0.45):
     """A rotated square of colour A on B, box-filtered: its label map and its corners."""
     c, h = np.array([size / 2 + 0.3, size / 2 - 0.2]), size * 0.28

@@ -102,12 +102,16 @@ def _coverage_distance(a: np.ndarray, normal: np.ndarray) -> np.ndarray:
     (the sum of two uniforms of widths ``|cos t|`` and ``|sin t|``); the coverage
     is its distribution function, inverted here. A pixel wholly covered or wholly
     uncovered gets the half width of the trapezoid (the least distance it implies).
+    Without a normal (a pixel its neighbours surround evenly) the border is read
+    as parallel to a pixel side: ``d = a - 0.5``.
     """
     c = np.abs(normal[:, 0])
     s = np.abs(normal[:, 1])
-    L = np.maximum(np.hypot(c, s), 1e-12)
-    w1 = np.maximum(c, s) / L
-    w2 = np.where(L > 1e-12, np.minimum(c, s) / L, 0.0)
+    L = np.hypot(c, s)
+    known = L > 1e-12
+    L = np.where(known, L, 1.0)
+    w1 = np.where(known, np.maximum(c, s) / L, 1.0)
+    w2 = np.where(known, np.minimum(c, s) / L, 0.0)
     mid = 0.5 * (w1 - w2) / w1  # coverage where the linear part ends
     lo = a < 0.5 - mid
     hi = a > 0.5 + mid
