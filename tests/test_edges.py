@@ -438,6 +438,35 @@ def test_edge_width_is_read_from_the_image(sigma, tolerance):
         assert abs(g.blur[0, 2] - sigma) <= tolerance
 
 
+def test_a_border_the_photo_does_not_show_is_soft():
+    """A label border across a faint step (below the contrast a reading needs) gets the label map's precision as
+    its width, not a sharp cut."""
+    from tpsv.encode.vectorize import build_geometry
+    from tpsv.geometry.edgewidth import MIN_CONTRAST, UNSURE_SIGMA
+
+    _, labels, cover = blurred_edge(32, 15.3, 0.0)
+    grey = 0.5 + 0.4 * MIN_CONTRAST / np.sqrt(3) * (cover - 0.5)
+    rgb = np.repeat(grey[..., None], 3, axis=2).astype(np.float32)
+    g = build_geometry(labels, rgb)
+    assert g.blur.tolist() == [[0.0, 1.0, UNSURE_SIGMA]]
+
+
+@pytest.mark.parametrize("shift", [0, 1])
+def test_an_outline_off_the_photos_edge_is_soft(shift):
+    """A sharp step whose outline lies ``shift`` px off it: on it, the border stays sharp; off it, it gets at least
+    the label map's precision as its width."""
+    from tpsv.geometry.edgewidth import UNSURE_SIGMA, edge_widths
+
+    rgb, _, _ = blurred_edge(32, 15.0, 0.0)
+    elsewhere, labels, _ = blurred_edge(32, 15.0 + shift, 0.0)
+    regions, index = build_regions(labels, elsewhere)  # outlines fitted to a step shift px to the right
+    got = edge_widths(rgb, regions, index)
+    if shift == 0:
+        assert got.shape == (0, 3)
+    else:
+        assert got.shape == (1, 3) and got[0, 2] >= UNSURE_SIGMA
+
+
 def test_a_blurred_border_renders_the_blurred_step_at_any_scale():
     """A border with an edge width renders, at any scale, the blurred step of the scene, in bands as in one piece."""
     import dataclasses
