@@ -288,7 +288,8 @@ def test_islands_are_carried_along(model):
     assert np.abs(got - want).max() < 0.25
     for p, q in zip(model.regions[DISC].outline, moved.regions[DISC].outline):
         assert patch.fold_free(moved.regions[DISC].patch)
-        assert abs(q.mean(0) - phi(p).mean(0)).max() < 0.5
+        # the outline's area centroid (its vertices' mean depends on where they were kept)
+        assert abs(centroid(q) - centroid(phi(p))).max() < 0.5
 
 
 def test_outlines_too_long_are_refused_before_any_work():

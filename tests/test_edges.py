@@ -46,7 +46,7 @@ def test_fitted_border_lies_on_the_true_edge(x0, slope):
     inner = poly[(poly[:, 1] > 3) & (poly[:, 1] < size - 3) & (poly[:, 0] > 1) & (poly[:, 0] < size - 1)]
     assert len(inner) >= 2
     true_x = x0 + slope * (inner[:, 1] - size / 2)
-    # within the RDP tolerance (0.06 px), the file grid (1/16 px) and the colour reading's error
+    # within the RDP tolerance (0.04 px), the file grid (1/16 px) and the colour reading's error
     assert np.abs(inner[:, 0] - true_x).max() <= 0.13
     # the label map alone puts it on pixel edges, up to half a pixel off
     traced, _ = build_regions(labels)
