@@ -49,9 +49,9 @@ def test_the_transparent_part_becomes_transparent_regions(encoded):
     clear = [r for r in model.regions if r.transparent]
     assert len(clear) == 1 and len(clear) < len(model.regions)
     assert (res.model.regions[model.regions.index(clear[0])].transparent)
-    # version 4, flags: detail and alpha; the transparent region carries no texture
+    # flags: detail and alpha; the transparent region carries no texture
     version, flags = np.frombuffer(res.data[8:12], "<u2")
-    assert version == 5 and flags == layout.FLAG_DETAIL | layout.FLAG_ALPHA
+    assert version == layout.VERSION and flags == layout.FLAG_DETAIL | layout.FLAG_ALPHA
     assert model.detail.mode[model.regions.index(clear[0])] == 0
 
 

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from tpsv import codec
 from tpsv.codec import layout, quant, sections
+from tpsv.geometry.crossing import is_simple
 from tpsv.errors import TpsvError, TpsvFormatError
 from tpsv.model import CURVILINEAR, Features, Model, Params, Patch, Region
 
@@ -385,7 +386,7 @@ def test_section_sizes_break_down_the_file():
 def test_file_starts_with_magic_and_version():
     data = codec.encode(tiny_model())
     assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
-    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 5
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 6
 
 
 def test_compact_features():
@@ -540,10 +541,10 @@ def test_text_mode_mangling_is_named():
     reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
 
 
-@pytest.mark.parametrize("version", [6, 7, 65535])
+@pytest.mark.parametrize("version", [7, 8, 65535])
 def test_future_version_rejected(version):
     data = patch_header(codec.encode(tiny_model()), version=version)
-    reject(data, f"unsupported format version {version} (this tpsv reads up to 5)")
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 6)")
     # Even a short file of a future version gets the version message.
     reject(data[:12], f"unsupported format version {version}")
 
@@ -860,7 +861,7 @@ def test_limits_are_exported():
 
 CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
 VERSION_1 = sorted((Path(__file__).parent / "data" / "v1").glob("*.tpsv"))
-OLD_VERSIONS = VERSION_1 + [p for v in ("v2", "v3", "v4") for p in sorted((Path(__file__).parent / "data" / v).glob("*.tpsv"))]
+OLD_VERSIONS = VERSION_1 + [p for v in ("v2", "v3", "v4", "v5") for p in sorted((Path(__file__).parent / "data" / v).glob("*.tpsv"))]
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.stem)
@@ -871,8 +872,9 @@ def test_reencoding_a_sample_file_gives_its_bytes(path):
 
 
 @pytest.mark.parametrize("path", OLD_VERSIONS, ids=lambda p: f"{p.parent.name}-{p.stem}")
-def test_old_version_files_are_read_and_written_back_as_version_5(path):
-    """docs/FORMAT.md, Versions: a version-1 to -4 file decodes as it always did; encoding writes version 5, same model."""
+def test_old_version_files_are_read_and_written_back_as_version_6(path):
+    """docs/FORMAT.md, Versions: a version-1 to -5 file decodes as it always did (an outline
+    crossing itself mended); encoding writes version 6, same model."""
     data = path.read_bytes()
     version = int(path.parent.name[1:])
     assert struct.unpack_from("<H", data, 8)[0] == version
@@ -880,9 +882,9 @@ def test_old_version_files_are_read_and_written_back_as_version_5(path):
     assert (m.detail is None) == (version < 3 or struct.unpack_from("<H", data, 10)[0] == 0)
     assert not any(r.transparent for r in m.regions)
     again = codec.encode(m)
-    assert struct.unpack_from("<H", again, 8)[0] == 5
+    assert struct.unpack_from("<H", again, 8)[0] == 6
     # the same flags (detail or not), and from version 3 on the same sections but the regions
-    # (whose outlines are now counted in 1/16 px: xy_shift one more)
+    # (whose outlines are now counted in 1/16 px: xy_shift one more; a crossing mended)
     assert struct.unpack_from("<H", again, 10)[0] == struct.unpack_from("<H", data, 10)[0]
     if version >= 3:
         sizes, before = codec.section_sizes(again), codec.section_sizes(data)
@@ -1091,3 +1093,34 @@ def test_hostile_edge_widths_are_refused_in_one_line():
 def test_version_1_files_have_sharp_borders():
     for path in VERSION_1:
         assert codec.decode(path.read_bytes()).blur.shape == (0, 3)
+
+
+# ------------------------------------------------------------------ outlines crossing themselves (version 6)
+
+BOW_TIE = np.array([[0, 0], [64, 64], [64, 0], [0, 64]], np.int32)  # 1/16 px: a 4 px square's corners
+
+
+def test_an_outline_crossing_itself_is_refused():
+    data = with_quantized(tiny_model(), xy=BOW_TIE)
+    reject(data, "outline polygon 0 crosses itself (edges 0 and 2)")
+
+
+def test_a_version_5_file_with_a_crossing_outline_is_read_mended():
+    """docs/FORMAT.md, Versions: older encoders could fold an outline over itself; it reads mended."""
+    data = patch_header(with_quantized(tiny_model(), xy=BOW_TIE), version=5)
+    m = codec.decode(data)
+    (poly,) = m.regions[0].outline
+    assert is_simple(poly) and len(poly) == 3  # the larger half of the bow tie
+    assert codec.decode(codec.encode(m)).regions[0].outline[0].tolist() == poly.tolist()
+
+
+def test_the_encoder_mends_what_rounding_folds():
+    """A sliver thinner than the grid whose sides cross once rounded is written mended."""
+    m = tiny_model()
+    m.regions[0].outline = [np.array([[0, 0], [4, 0], [4, 2.0], [2.76, 2.048], [1.0, 2.015], [3.12, 2.08],
+                                      [4.0, 2.1], [4, 4], [0, 4]])]
+    assert is_simple(m.regions[0].outline[0])
+    assert not is_simple(np.rint(m.regions[0].outline[0] * 16))
+    got = codec.decode(codec.encode(m)).regions[0].outline[0]
+    assert is_simple(got)
+    assert_models_identical(codec.quantize(m), codec.decode(codec.encode(m)))

@@ -7,7 +7,7 @@ import zlib
 
 import zstandard
 
-from ..errors import TpsvFormatError
+from ..errors import TpsvError, TpsvFormatError
 from ..fileio import read_bytes, write_bytes_atomic
 from ..model import Model
 from . import detail as detail_codec
@@ -150,6 +150,12 @@ def decode(data: bytes) -> Model:
         width=h.width, height=h.height, params=sections.unpack_params(raws[0]),
         **sections.unpack_regions(raws[1], h), **sections.unpack_features(raws[2], h),
     )
+    if h.version < layout.SIMPLE_OUTLINES_SINCE:
+        # older encoders could write an outline folded over itself; read it as today's would write it
+        try:
+            q.xy, q.vert_counts = quant.mend_outlines(q.xy, q.vert_counts)
+        except TpsvError as exc:
+            raise TpsvFormatError(str(exc)) from None
     quant.validate(q)
     model = quant.to_model(q)
     if h.has_detail:

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TpsvFormatError
+from ..errors import TpsvError, TpsvFormatError
+from ..geometry import crossing
 from ..model import CURVILINEAR, Features, Model, Params, Patch, Region
 from . import layout
 
@@ -181,6 +182,11 @@ def from_model(model: Model) -> Quantized:
     width, height = _as_int(model.width, "width"), _as_int(model.height, "height")
     regions = list(model.regions)
     grid, poly_counts, vert_counts, xy, ctrl, labels = _quantize_regions(regions)
+    # rounding to the grid (or an edit) may fold a thin part of an outline over itself
+    try:
+        xy, vert_counts = mend_outlines(xy, vert_counts)
+    except TpsvError as exc:
+        raise ValueError(str(exc)) from None
     params = quantize_params(model.params)
     _validate_params(params, ValueError, layout.FormatLimitError)
     counts, st_bits, st, lab, kind, pair = _quantize_features(
@@ -194,6 +200,43 @@ def from_model(model: Model) -> Quantized:
         kind=kind, pair=pair, blur=_quantize_blur(getattr(model, "blur", None), len(regions)),
         transparent=np.array([bool(getattr(r, "transparent", False)) for r in regions], bool),
     )
+
+
+def mend_outlines(xy: np.ndarray, vert_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stored outlines (``xy`` int32, ``vert_counts`` per polygon) with every self-crossing
+    mended (:func:`tpsv.geometry.crossing.mend`, crossing points on the grid).
+
+    What the encoder applies before writing, and the decoder to files of
+    versions before 6, which did not forbid crossings (``docs/FORMAT.md``).
+
+    Raises
+    ------
+    TpsvError
+        A polygon too complex to check, or with too many crossings.
+    """
+    if xy.shape[0] == 0:
+        return xy, vert_counts
+    polys = np.split(xy, np.cumsum(vert_counts)[:-1])
+    changed = False
+    # crossing points on the grid the outlines already keep: a finer one would cost every vertex a bit
+    from .sections import xy_shift  # (sections builds on this module)
+
+    step = 1 << xy_shift(xy)
+    for k in range(len(polys)):
+        cuts: list = []
+        mended = crossing.mend(polys[k], step=step, cuts=cuts)
+        if mended is polys[k]:
+            continue
+        changed = True
+        polys[k] = mended
+        # the regions across the cut edges take the crossing point too: the border stays shared
+        for other in range(len(polys)):
+            if other != k:
+                polys[other] = crossing.insert_cuts(polys[other], cuts)
+    if not changed:
+        return xy, vert_counts
+    return (np.concatenate(polys).astype(np.int32),
+            np.array([len(p) for p in polys], np.int64))
 
 
 def _quantize_blur(blur, n_regions: int) -> np.ndarray:
@@ -474,6 +517,18 @@ def _validate_regions(q: Quantized) -> None:
             f"outline polygon {bad[0]} has {q.vert_counts[bad[0]]} vertices "
             f"(at most {layout.MAX_POLYGON_VERTICES})"
         )
+    _validate_simple(q)
+
+
+def _validate_simple(q: Quantized) -> None:
+    """No outline polygon crosses itself (an outline's inside would depend on the fill rule)."""
+    for k, p in enumerate(np.split(q.xy, np.cumsum(q.vert_counts)[:-1]) if q.xy.shape[0] else []):
+        try:
+            c = crossing.crossings(p, limit=1)
+        except TpsvError as exc:
+            raise TpsvFormatError(f"outline polygon {k}: {exc}") from None
+        if len(c):
+            raise TpsvFormatError(f"outline polygon {k} crosses itself (edges {c[0, 0]} and {c[0, 1]})")
 
 
 def _validate_blur(q: Quantized) -> None:
