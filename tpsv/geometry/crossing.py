@@ -99,11 +99,12 @@ def crossings(poly: np.ndarray, limit: int | None = None) -> np.ndarray:
         raise TpsvError(f"outline too complex: {n} vertices crowd too few cells")
     found = []
     total = 0
-    # pair every row with the rows after it in its cell, one offset at a time
+    # pair every row with the rows after it in its cell, one offset at a time; the rows still
+    # paired shrink with the offset, so the work is the pairs compared, however crowded a cell
     row_end = np.repeat(start + size, size)
-    rows = np.arange(key.size)
+    a = np.arange(key.size)
     for off in range(1, int(size.max())):
-        a = rows[rows + off < row_end]
+        a = a[a + off < row_end[a]]
         if a.size == 0:
             break
         i, j = idx[e[a]], idx[e[a + off]]
