@@ -552,7 +552,8 @@ def test_future_version_rejected(version):
 def test_version_zero_and_flags_rejected():
     data = codec.encode(tiny_model())
     reject(patch_header(data, version=0), "unsupported format version 0")
-    reject(patch_header(data, flags=4), "unsupported flags 0x0004")
+    reject(patch_header(data, flags=8), "unsupported flags 0x0008")
+    reject(patch_header(patch_header(data, flags=4), version=5), "unsupported flags 0x0004")
 
 
 def test_header_checksum():

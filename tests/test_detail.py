@@ -133,7 +133,7 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     assert codec.encode(codec.quantize(model)) == textured.data
     sizes = codec.section_sizes(textured.data)
     assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
-    assert struct.unpack_from("<HH", textured.data, 8) == (layout.VERSION, layout.FLAG_DETAIL)
+    assert struct.unpack_from("<HH", textured.data, 8) == (layout.VERSION, layout.FLAG_DETAIL | layout.FLAG_CURVES)
 
 
 def test_a_tall_texture_puts_its_planes_side_by_side():
@@ -218,7 +218,7 @@ def test_hostile_detail_sections_are_refused(textured):
     import zlib
 
     v2 = bytearray(data)
-    struct.pack_into("<H", v2, 8, 2)
+    struct.pack_into("<HH", v2, 8, 2, layout.FLAG_DETAIL)
     struct.pack_into("<I", v2, 68, zlib.crc32(bytes(v2[:68])))
     _reject(bytes(v2), "unsupported flags 0x0001")
     _reject(data[:layout.parse_header(data).detail_offset + 3], "truncated")

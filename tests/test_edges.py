@@ -154,12 +154,15 @@ def test_shared_borders_are_one_curve(picture):
     from tpsv.geometry import outline
 
     rgb, labels = edge_picture(24, 12.4, 0.2)[:2] if picture == "two" else three_regions()
+    from tpsv.geometry import curves
+
     m = codec.quantize(vectorize(rgb, labels, search=False).model)
+    assert m.curves
     for scale in (1.0, 3.7, 8.0):
         W, H = round(m.width * scale), round(m.height * scale)
-        # each region filled on its own: every pixel covered exactly once
+        # each region's curves, as drawn at this size, filled on their own: every pixel covered exactly once
         counts = np.zeros((H, W), np.int32)
-        for reg in m.regions:
+        for reg in curves.as_drawn(m, W, H).regions:
             counts += outline._fill_polys((H, W), reg.outline, scale=(W / m.width, H / m.height))
         assert np.count_nonzero(counts != 1) == 0, scale
     # both sides of a border have the same vertices, so the file stores it once

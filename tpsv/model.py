@@ -296,6 +296,10 @@ class Model:
         scale). Borders not listed are sharp.
     detail : Detail or None
         The texture detail layer (None: the pure vector image).
+    curves : bool
+        Outlines are drawn as smooth curves through their vertices
+        (``tpsv.geometry.curves``: centripetal Catmull-Rom, broken at corners,
+        junctions and the frame); otherwise as polygons.
     """
 
     width: int
@@ -306,3 +310,4 @@ class Model:
     encoding: dict = field(default_factory=dict, compare=False, repr=False)
     blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
     detail: Detail | None = field(default=None, repr=False)
+    curves: bool = False

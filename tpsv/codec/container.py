@@ -95,7 +95,8 @@ def encode(model: Model) -> bytes:
         tail = layout.DETAIL_SIZES.pack(len(comp), len(raw)) + comp
     header = layout.Header(
         version=layout.VERSION, flags=(layout.FLAG_DETAIL if detail is not None else 0)
-        | (layout.FLAG_ALPHA if q.transparent is not None and q.transparent.any() else 0),
+        | (layout.FLAG_ALPHA if q.transparent is not None and q.transparent.any() else 0)
+        | (layout.FLAG_CURVES if q.curves else 0),
         width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
         vertices=int(q.xy.shape[0]), ctrl_points=int(q.ctrl.size // 8),
@@ -149,6 +150,7 @@ def decode(data: bytes) -> Model:
     q = quant.Quantized(
         width=h.width, height=h.height, params=sections.unpack_params(raws[0]),
         **sections.unpack_regions(raws[1], h), **sections.unpack_features(raws[2], h),
+        curves=h.has_curves,
     )
     if h.version < layout.SIMPLE_OUTLINES_SINCE:
         # older encoders could write an outline folded over itself; read it as today's would write it

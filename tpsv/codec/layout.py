@@ -27,6 +27,8 @@ SIMPLE_OUTLINES_SINCE = 6
 FLAG_DETAIL = 1
 #: Header flag (version 4): some regions are transparent (the regions section's ``alpha``).
 FLAG_ALPHA = 2
+#: Header flag (version 6): outlines are drawn as curves through their vertices (``Model.curves``).
+FLAG_CURVES = 4
 DETAIL_SIZES = struct.Struct("<II")
 
 #: Little-endian header: magic, version, flags, width, height, 5 counts,
@@ -123,6 +125,10 @@ class Header:
         return bool(self.flags & FLAG_ALPHA)
 
     @property
+    def has_curves(self) -> bool:
+        return bool(self.flags & FLAG_CURVES)
+
+    @property
     def detail_offset(self) -> int:
         """Where the detail section's sizes start (after the three sections)."""
         return HEADER_SIZE + sum(self.compressed)
@@ -180,7 +186,7 @@ def detail_raw_bound(h: Header) -> int:
 
 def known_flags(version: int) -> int:
     """The header flags ``version`` defines."""
-    return (FLAG_DETAIL if version >= 3 else 0) | (FLAG_ALPHA if version >= 4 else 0)
+    return (FLAG_DETAIL if version >= 3 else 0) | (FLAG_ALPHA if version >= 4 else 0) | (FLAG_CURVES if version >= 6 else 0)
 
 
 def parse_header(data: bytes | memoryview) -> Header:

@@ -110,6 +110,8 @@ class Quantized:
     blur: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
     #: Per region: transparent (``Region.transparent``; version 4, else all False). None: all False.
     transparent: np.ndarray | None = None
+    #: Outlines drawn as curves (``Model.curves``; header flag 4, version 6).
+    curves: bool = False
 
 
 def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) -> int:
@@ -199,6 +201,7 @@ def from_model(model: Model) -> Quantized:
         xy=xy, ctrl=ctrl, feature_counts=counts, st_bits=st_bits, st=st, lab=lab,
         kind=kind, pair=pair, blur=_quantize_blur(getattr(model, "blur", None), len(regions)),
         transparent=np.array([bool(getattr(r, "transparent", False)) for r in regions], bool),
+        curves=bool(getattr(model, "curves", False)),
     )
 
 
@@ -612,6 +615,7 @@ def to_model(q: Quantized) -> Model:
         features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
         encoding={ST_BITS_KEY: q.st_bits, ST_BITS_FOR_KEY: (q.width, q.height, p["st_steps"])},
         blur=np.column_stack([q.blur[:, :2].astype(np.float64), q.blur[:, 2] / BLUR_SCALE]).reshape(-1, 3),
+        curves=bool(q.curves),
     )
 
 

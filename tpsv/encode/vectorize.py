@@ -88,7 +88,7 @@ import numpy as np
 
 from .. import codec, metrics, tps
 from ..errors import TpsvError
-from ..geometry import segment
+from ..geometry import curves, segment
 from ..geometry.edgewidth import edge_widths
 from ..geometry.regions import build_regions
 from ..geometry.subpixel import own_side_colours
@@ -167,12 +167,15 @@ class Geometry:
         it at scale 1 (:meth:`pixel_st` fills it on first use).
     blur : ndarray (n, 3) float64
         Edge widths of the borders (``Model.blur``).
+    curves : bool
+        The outlines are drawn as curves (``Model.curves``: fitted outlines are, traced ones not).
     """
 
     regions: list[Region]
     index: np.ndarray
     st: np.ndarray | None = None
     blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    curves: bool = False
     _cache: dict = field(default_factory=dict, repr=False)
 
     def pixel_st(self, device: str = "cpu") -> np.ndarray:
@@ -217,7 +220,8 @@ class Geometry:
             from ..gpu.coverage import DeviceBorders
 
             h, w = self.index.shape
-            shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur)  # all it reads
+            shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur,
+                                    curves=self.curves)  # all it reads
             self._cache["borders"] = DeviceBorders(shape, w, h).mix(self.index)
         return self._cache["borders"]
 
@@ -323,8 +327,11 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     Geometry
     """
     regions, index = build_regions(labels, rgb)
-    blur = edge_widths(rgb, regions, index) if rgb is not None else np.zeros((0, 3))
-    return Geometry(regions=regions, index=index, blur=blur)
+    if rgb is None:
+        return Geometry(regions=regions, index=index)
+    h, w = index.shape
+    blur = edge_widths(rgb, curves.drawn_regions(regions, w, h, curves.DRAWN_STEP), index)
+    return Geometry(regions=regions, index=index, blur=blur, curves=True)
 
 
 def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted",
@@ -458,7 +465,8 @@ def make_model(
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
-    model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params, blur=geometry.blur)
+    model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params, blur=geometry.blur,
+                  curves=geometry.curves)
     return fit_model(rgb, geometry, model, fit_sub, fit_iterations) if fit else model
 
 
@@ -574,7 +582,8 @@ def stored_maps(geometry: Geometry) -> tuple | None:
     (then a render of a decoded model can reuse them), else None.
     """
     h, w = geometry.index.shape
-    same = codec.quantize(Model(width=w, height=h, regions=geometry.regions, features=Features.empty()))
+    same = codec.quantize(Model(width=w, height=h, regions=geometry.regions, features=Features.empty(),
+                                curves=geometry.curves))
     if all(_same_region(a, b) for a, b in zip(geometry.regions, same.regions)):
         return geometry.index, geometry.pixel_st(), geometry.border_mix()
     return None

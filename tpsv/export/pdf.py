@@ -144,7 +144,12 @@ def export_pdf(model, tolerance: float = DEFAULT_TOLERANCE, detail: bool = True,
         raise TpsvError(f"page {W * k:.0f} x {H * k:.0f} pt is larger than PDF viewers take "
                         f"(at most {MAX_PAGE_PT:.0f} pt a side): give a higher dpi")
     st = stats if stats is not None else ExportStats()
+    from ..geometry.curves import as_drawn
     from ..rendering.pixelmap import draw_order, region_index
+
+    # outlines drawn as curves become fine polygons (pieces of half a model pixel: at 8x zoom
+    # within 0.05 device pixel of the curve wherever it bends by less than a 5 px radius)
+    model = as_drawn(model)
 
     vector = model if model.detail is None else _without_detail(model)
     sigmas, across = edge_sigmas(model)

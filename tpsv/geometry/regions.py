@@ -15,11 +15,15 @@ from scipy import ndimage
 
 from ..errors import TpsvError
 from ..model import Patch, Region
-from . import outline, patch, segment, subpixel
+from . import curves, outline, patch, segment, subpixel
 
 
 def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[list[Region], np.ndarray]:
     """Regions with outlines and patches from a label map.
+
+    With ``rgb`` the outlines are to be drawn as curves (``Model.curves``,
+    :mod:`tpsv.geometry.curves`): they are simplified for that, and the
+    index comes from the curves.
 
     Disconnected labels become several regions (each keeps its label value);
     nothing is merged away, so a single-pixel region stays a region.
@@ -65,7 +69,8 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
         regions.append(Region(label=label, outline=polys, patch=patch.build_patch(mask, polys)))
     if not regions:
         raise TpsvError("label map has no regions")
-    index = outline.rasterize_regions(regions, w, h, src_size=(w, h))
+    drawn = regions if rgb is None else curves.drawn_regions(regions, w, h, curves.DRAWN_STEP)
+    index = outline.rasterize_regions(drawn, w, h, src_size=(w, h))
     return regions, index
 
 

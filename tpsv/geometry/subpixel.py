@@ -36,10 +36,14 @@ rare (a few output pixels at 4x on the samples), except where a region falls
 back to its traced outline (below).
 
 Corners, which no straight border describes, are put back where the straight
-runs either side cross. The curve is simplified by Ramer-Douglas-Peucker at
-:data:`TOLERANCE` px where the colours are trusted, easing to
-:data:`LOOSE_TOLERANCE` px where only the smoothed mask speaks (it is no more
-precise than the label map), and its vertices are put on the file's grid. A
+runs either side cross. The outlines are drawn as curves through their
+vertices (:mod:`tpsv.geometry.curves`), so each run between junctions is
+smoothed (a local cubic fit over :data:`SMOOTH_WINDOW` contour points, its
+corners kept) and simplified for its curve: it keeps the points whose curve
+stays within :data:`TOLERANCE` px of the smoothed run where the colours are
+trusted, easing to :data:`LOOSE_TOLERANCE` px where only the smoothed mask
+speaks (it is no more precise than the label map); the vertices are then put
+on the file's grid. A
 region whose fitted outline would lose it (a one-pixel line of a colour
 close to a neighbour's, say) keeps its traced outline.
 """
@@ -49,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from . import outline
+from . import curves, outline
 
 #: Side of the window (px) whose interior pixels give each side's colour.
 WINDOW = 5
@@ -65,10 +69,11 @@ SATURATED = 0.03
 CONTRAST = 0.08
 #: Gaussian (px) that smooths a region's mask where the colours cannot tell.
 SMOOTH_SIGMA = 0.7
-#: RDP tolerance of fitted outlines where the colours tell where the border is, px. At 8x a
-#: chord 0.06 px off the border is half an output pixel: 0.04 took the synthetic shapes at 8x
-#: from 43.71 to 44.65 dB for +0.0-0.6 % of the samples' files at quality 75.
-TOLERANCE = 0.04
+#: Tolerance of fitted outlines where the colours tell where the border is, px: how far their
+#: curve may pass from the (smoothed) contour. Polygons at 0.06 px left facets half an output
+#: pixel deep at 8x; curves at 0.03 px keep 15-23 % fewer vertices on the samples than polygons
+#: at 0.04 and took the synthetic shapes at 8x from 43.71 (polygons at 0.06) to 45.2 dB.
+TOLERANCE = 0.03
 #: Outline vertices are rounded to 1/GRID px, the ``.tpsv`` file's outline quantum
 #: (``tpsv.codec.quant.OUTLINE_SCALE``; a test keeps them equal).
 GRID = 16
@@ -88,7 +93,7 @@ SNAP_TURN = 30.0
 SNAP_SLIDE = 0.25
 #: Grid steps (of 1/GRID px) between the vertices of loose stretches (1/4 px: they are known to half a pixel).
 LOOSE_STEP = 4
-#: RDP tolerance where they cannot (low contrast, texture): the label map's own precision.
+#: Tolerance where they cannot (low contrast, texture): the label map's own precision.
 LOOSE_TOLERANCE = 0.5
 #: Runs of a contour of their own shorter than this (px) are junctions of three or more regions.
 JUNCTION = 2.0
@@ -641,12 +646,16 @@ def _meeting_point(segments: list[np.ndarray], fallback: np.ndarray) -> np.ndarr
 
 
 def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[np.ndarray]:
-    """Ramer-Douglas-Peucker of all contours at once, a border between two regions once for both.
+    """All contours simplified at once for drawing as curves, a border between two regions once for both.
 
     Two regions' contours along their common border pass through the same
     points (their fields add up to 1 there), in opposite directions. Each
     such run is simplified once and both sides keep the same points, so the
     outlines stay one curve (and the file stores it once, ``tpsv.codec.chains``).
+    A run keeps the points whose curve (``tpsv.geometry.curves``: its ends
+    and corners breaks) stays within each point's tolerance of all of them,
+    from Ramer-Douglas-Peucker at three times the tolerance (which keeps the
+    corners).
     """
     from ..codec import chains
 
@@ -655,6 +664,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
     cuts = chains.cuts(part, sizes)
     keep = [np.zeros(n, bool) for n in sizes]
     done = [np.zeros(n, bool) for n in sizes]
+    out = [p.copy() for p in polys]
     for i, (p, tol) in enumerate(zip(polys, tols)):
         n = sizes[i]
         c = cuts[i].tolist()
@@ -662,14 +672,48 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
             if done[i][a]:
                 continue
             run = np.arange(a, b + 1)
-            kept = run[_rdp_open(p[run % n], tol[run % n])]
+            pts, t = _smooth_run(p[run % n]), tol[run % n]
+            kept = run[curves.simplify_open(pts, t, _rdp_open(pts, 1e9 * t))]
             keep[i][kept % n] = True
+            out[i][run % n] = pts
             q, j = (int(v) for v in part[i][b - 1])
             if q >= 0:
                 # the twin run, in contour q, goes from our vertex b (its vertex j) back to our vertex a
                 keep[q][(j + b - kept) % sizes[q]] = True
+                out[q][(j + b - run) % sizes[q]] = pts
                 done[q][j] = True
-    return [p[k] for p, k in zip(polys, keep)]
+    return [p[k] for p, k in zip(out, keep)]
+
+
+#: Savitzky-Golay window (contour points) and degree smoothing a run's reading noise before it is
+#: simplified for a curve (a local cubic fit: a circle is not shrunk, as a Gaussian would).
+SMOOTH_WINDOW, SMOOTH_DEGREE = 9, 3
+
+
+def _smooth_run(p: np.ndarray) -> np.ndarray:
+    """An open run of contour points smoothed along itself, its ends and corners kept where they are."""
+    n = len(p)
+    if n < 5:
+        return p
+    u, v = p[1:-1] - p[:-2], p[2:] - p[1:-1]
+    cos = (u * v).sum(axis=1) / np.maximum(np.hypot(*u.T) * np.hypot(*v.T), 1e-300)
+    pins = np.concatenate([[0], 1 + np.flatnonzero(cos < np.cos(np.radians(curves.CORNER_TURN))), [n - 1]])
+    out = p.copy()
+    from scipy.signal import savgol_coeffs
+
+    r = SMOOTH_WINDOW // 2
+    w = savgol_coeffs(SMOOTH_WINDOW, SMOOTH_DEGREE)
+    for a, b in zip(pins[:-1], pins[1:]):
+        if b - a < 3:
+            continue
+        seg = p[a:b + 1]
+        # reflected about the fixed ends (odd extension): the ends stay, the run stays straight there
+        ext = np.vstack([2 * seg[0] - seg[r:0:-1], seg, 2 * seg[-1] - seg[-2:-r - 2:-1]]) if len(seg) > r + 1 else None
+        if ext is None:
+            continue
+        sm = np.stack([np.convolve(ext[:, k], w, mode="valid") for k in range(2)], axis=1)
+        out[a + 1:b] = sm[1:-1]
+    return out
 
 
 def _finish(polys: list[np.ndarray], comp: np.ndarray, region: int, box: tuple[slice, slice]) -> list[np.ndarray] | None:

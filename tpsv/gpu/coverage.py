@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from ..geometry import curves
 from ..rendering.borders import BorderMix, Borders, edge_widths, outline_pieces
 from . import resolve_device
 from . import warp as _warp
@@ -569,6 +570,7 @@ class DeviceBorders:
         _warp()
         self.device = resolve_device(device)
         self.width, self.height = int(width), int(height)
+        model = curves.as_drawn(model, self.width, self.height)
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
         nr = max(len(model.regions), 1)

@@ -46,7 +46,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import TpsvError
-from ..geometry import outline
+from ..geometry import curves, outline
 from ..rendering.pixelmap import draw_order
 from . import resolve_device
 from . import warp as _warp
@@ -300,6 +300,7 @@ class DeviceOutlines:
         self.device = resolve_device(device)
         self.threads = threads
         self.width, self.height = int(width), int(height)
+        model = curves.as_drawn(model, self.width, self.height)
         order = draw_order(model)
         regions = [model.regions[r] for r in order]
         # the host's own preparation: the same edges, boxes and float64 values

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from ..geometry import curves
+
 #: Longest outline piece, output pixels.
 PIECE_PX = 1.0
 #: Most outline pieces held for one output (bounds memory: about 100 bytes each while built).
@@ -111,6 +113,7 @@ def outline_pieces(model, width: int, height: int) -> tuple[np.ndarray, np.ndarr
     a, d : ndarray (n, 2) float64
         Piece starts and vectors, output pixels (``n`` may be 0).
     """
+    model = curves.as_drawn(model, width, height)
     k = np.array([width / float(model.width), height / float(model.height)])
     ends = [np.asarray(p, np.float64) for reg in model.regions for p in reg.outline if len(p) >= 2]
     none = np.zeros((0, 2)), np.zeros((0, 2))

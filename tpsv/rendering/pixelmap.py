@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import TpsvError
-from ..geometry import outline
+from ..geometry import curves, outline
 from ..gpu import warp
 
 #: ``Params.extra`` key: regions drawn on top (comma-separated indices, first on top).
@@ -95,6 +95,7 @@ def region_index(model, width: int, height: int) -> np.ndarray:
     ndarray (height, width) int32
         Region index, ``-1`` outside every region.
     """
+    model = curves.as_drawn(model, width, height)
     order = draw_order(model)
     if order == list(range(len(model.regions))):
         return outline.rasterize_regions(model.regions, width, height, src_size=(model.width, model.height))
@@ -240,6 +241,7 @@ class BandMaps:
 
         self.width, self.height = int(width), int(height)
         self.device = device
+        model = curves.as_drawn(model, self.width, self.height)
         order = draw_order(model)
         if order == list(range(len(model.regions))):
             self._lut, regions = None, model.regions

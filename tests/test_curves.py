@@ -1,0 +1,129 @@
+"""Outlines drawn as curves: which vertices break the curve, the curve itself, and what the encoder keeps."""
+
+import numpy as np
+import pytest
+
+from tpsv import codec
+from tpsv.geometry import curves
+
+
+def circle(n, r=20.0, c=(32.0, 32.0), phase=0.1):
+    t = phase + np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack([c[0] + r * np.cos(t), c[1] + r * np.sin(t)])
+
+
+def test_a_circle_is_smooth_and_a_square_has_four_corners():
+    sq = np.array([[10, 10], [30, 10], [30, 30], [20, 30], [10, 30]], float)  # one vertex mid-side
+    brk_c, brk_s = curves.breaks([circle(16), sq], 64, 64)
+    assert not brk_c.any()
+    assert brk_s.tolist() == [True, True, True, False, True]
+    # the square's sides stay straight: the mid-side vertex's curve runs along the side
+    drawn = curves.densify(sq, brk_s, 0.25)
+    on_top = drawn[(drawn[:, 1] > 29) & (drawn[:, 0] > 10) & (drawn[:, 0] < 30)]
+    assert np.abs(on_top[:, 1] - 30).max() < 1e-9
+
+
+def test_junctions_and_the_frame_break_the_curve():
+    # two regions sharing a border that bends gently at (22, 20): smooth there, broken on the frame
+    left = np.array([[0, 0], [20, 0], [22, 20], [20, 40], [0, 40]], float)
+    right = np.array([[20, 0], [40, 0], [40, 40], [20, 40], [22, 20]], float)
+    bl, br = curves.breaks([left, right], 40, 40)
+    assert bl.tolist() == [True, True, False, True, True] and br.tolist() == [True, True, True, True, False]
+    # a third outline leaving the border at (5, 5) and (25, 5) makes them junctions
+    a = np.array([[5, 5], [15, 4], [25, 5], [26, 15], [25, 25], [15, 26], [5, 25], [4, 15]], float)
+    b = np.array([[25, 5], [15, 4], [5, 5], [10, 0]], float)  # shares the edges 5,5 - 15,4 - 25,5
+    ba, _ = curves.breaks([a, b], 100, 100)
+    assert ba[0] and ba[2] and not ba[1]  # (5,5) and (25,5) are junctions; (15,4) has two neighbours
+
+
+def test_the_curve_passes_through_the_vertices_and_follows_a_circle():
+    p = circle(16)
+    brk = curves.breaks([p], 64, 64)[0]
+    drawn = curves.densify(p, brk, 0.1)
+    for v in p:
+        assert np.hypot(*(drawn - v).T).min() == 0.0
+    assert np.abs(np.hypot(drawn[:, 0] - 32, drawn[:, 1] - 32) - 20).max() < 0.015
+    # a polygon of the same 16 vertices is 0.38 px inside the circle at its chords' middles
+    mid = 0.5 * (p + np.roll(p, -1, axis=0))
+    assert np.abs(np.hypot(mid[:, 0] - 32, mid[:, 1] - 32) - 20).max() > 0.3
+
+
+def test_reversed_outline_gives_the_same_curve_and_beziers_match():
+    rng = np.random.default_rng(2)
+    p = circle(12) + rng.normal(0, 0.3, (12, 2))
+    p[5] += [3, 0]  # a corner
+    brk = curves.breaks([p], 64, 64)[0]
+    fwd = curves.densify(p, brk, 0.2)
+    rev = curves.densify(p[::-1], brk[::-1], 0.2)
+    # the same points, run backwards (each segment is cut the same way)
+    assert len(fwd) == len(rev)
+    d = np.array([np.hypot(*(rev - q).T).min() for q in fwd])
+    assert d.max() < 1e-9
+    bz = curves.beziers(p, brk)
+    s = 0.3
+    pt = ((1 - s) ** 3 * bz[:, 0] + 3 * (1 - s) ** 2 * s * bz[:, 1] + 3 * (1 - s) * s**2 * bz[:, 2] + s**3 * bz[:, 3])
+    m0, m1 = curves.hermite(p, brk)
+    q = np.roll(p, -1, axis=0)
+    herm = ((2 * s**3 - 3 * s**2 + 1) * p + (s**3 - 2 * s**2 + s) * m0 + (-2 * s**3 + 3 * s**2) * q
+            + (s**3 - s**2) * m1)
+    assert np.abs(pt - herm).max() < 1e-9
+
+
+def test_simplify_keeps_few_vertices_within_the_tolerance():
+    dense = circle(400)[::-1]  # an open arc of the circle: its first 200 points
+    arc = dense[:200]
+    tol = np.full(len(arc), 0.04)
+    kept = curves.simplify_open(arc, tol, np.array([0, len(arc) - 1]))
+    assert kept[0] == 0 and kept[-1] == len(arc) - 1
+    v = arc[kept]
+    brk = np.zeros(len(v), bool)
+    brk[0] = brk[-1] = True
+    # its curve (closed back along a straight chord, which is a break at both ends) stays on the circle
+    drawn = curves.densify(v, brk, 0.05)
+    on_arc = drawn[np.hypot(drawn[:, 0] - 32, drawn[:, 1] - 32) > 19]
+    assert np.abs(np.hypot(on_arc[:, 0] - 32, on_arc[:, 1] - 32) - 20).max() <= 0.041
+    # a polygon needs chords of at most sqrt(8 r tol) = 2.5 px: 26 vertices for this half circle; the curve far fewer
+    assert len(kept) <= 12
+
+
+def test_the_flag_survives_the_file_and_old_files_are_polygons():
+    from tpsv.model import Features, Model, Patch, Region
+
+    ctrl = np.zeros((2, 2, 4, 2))
+    ctrl[..., 0, :] = [[[0, 0], [0, 64]], [[64, 0], [64, 64]]]
+    ctrl[..., 1, :] = [64, 0]
+    ctrl[..., 2, :] = [0, 64]
+    m = Model(width=64, height=64, regions=[Region(0, [circle(16)], Patch(ctrl))], features=Features.empty(),
+              curves=True)
+    data = codec.encode(m)
+    assert data[10] & 4 and codec.decode(data).curves and codec.quantize(m).curves
+    plain = codec.encode(Model(width=64, height=64, regions=m.regions, features=Features.empty()))
+    assert not plain[10] & 4 and not codec.decode(plain).curves
+
+
+@pytest.mark.parametrize("scale", [1, 8])
+def test_a_curved_model_renders_its_curve(scale):
+    """The region map of a disc drawn as 16 vertices follows the circle, not the 16-gon."""
+    from tpsv.model import Features, Model, Patch, Region
+    from tpsv.rendering.pixelmap import region_index
+
+    ctrl = np.zeros((2, 2, 4, 2))
+    ctrl[..., 0, :] = [[[0, 0], [0, 64]], [[64, 0], [64, 64]]]
+    ctrl[..., 1, :] = [64, 0]
+    ctrl[..., 2, :] = [0, 64]
+    frame = np.array([[0, 0], [64, 0], [64, 64], [0, 64]], float)
+    disc = circle(16)
+    regions = [Region(0, [frame, disc[::-1]], Patch(ctrl)), Region(1, [disc], Patch(ctrl))]
+    n = 64 * scale
+    yy, xx = (np.mgrid[0:n, 0:n] + 0.5) / scale
+    inside = np.hypot(xx - 32, yy - 32) < 20
+    worst = {}
+    for curved in (True, False):
+        m = Model(width=64, height=64, regions=regions, features=Features.empty(), curves=curved)
+        idx = region_index(m, n, n)
+        wrong = (idx == 1) != inside
+        worst[curved] = np.abs(np.hypot(xx - 32, yy - 32)[wrong] - 20).max(initial=0.0)
+    # a pixel centre is on the wrong side only within half a pixel's diagonal of the curve
+    assert worst[True] <= 0.015 + 0.71 / scale
+    if scale == 8:
+        assert worst[False] > 0.3  # the 16-gon's chords
