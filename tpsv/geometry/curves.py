@@ -44,6 +44,8 @@ CORNER_TURN = 35.0
 #: Longest piece of a drawn curve, output pixels (the chord of an arc of radius 5 px
 #: over half a pixel lies within 0.006 px of it).
 DRAWN_STEP = 0.5
+#: Most pieces of all drawn curves of one output (a hostile file's far-flung vertices get longer pieces).
+MAX_DRAWN = 1 << 22
 
 
 def _keys(p: np.ndarray) -> np.ndarray:
@@ -66,24 +68,25 @@ def breaks(polys: list[np.ndarray], width: float, height: float) -> list[np.ndar
     -------
     list of ndarray (n,) bool
     """
-    nb: dict = {}
-    keyed = []
-    for p in polys:
-        k = _keys(p)
-        k = k[:, 0] * (1 << 40) + k[:, 1]
-        keyed.append(k)
-        n = len(k)
-        if n < 2:
-            continue
-        for a, b in zip(k.tolist(), np.roll(k, -1).tolist()):
-            if a != b:
-                nb.setdefault(a, set()).add(b)
-                nb.setdefault(b, set()).add(a)
+    polys = [np.asarray(p, np.float64).reshape(-1, 2) for p in polys]
+    sizes = [len(p) for p in polys]
+    if not sum(sizes):
+        return [np.ones(0, bool) for _ in polys]
+    k = _keys(np.concatenate(polys))
+    _, vid = np.unique(k, axis=0, return_inverse=True)
+    vid = vid.ravel()
+    # every undirected edge once (zero-length ones left out), then each vertex's distinct neighbours
+    start = np.cumsum([0] + sizes[:-1])
+    nxt = np.concatenate([np.roll(np.arange(n), -1) + s0 for n, s0 in zip(sizes, start)])
+    a, b = vid, vid[nxt]
+    real = a != b
+    edges = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)])[real], axis=0)
+    degree = np.bincount(edges.ravel(), minlength=int(vid.max()) + 1)
     out = []
-    for p, k in zip(polys, keyed):
-        p = np.asarray(p, np.float64)
-        if len(p) < 3:
-            out.append(np.ones(len(p), bool))
+    for p, s0 in zip(polys, start):
+        n = len(p)
+        if n < 3:
+            out.append(np.ones(n, bool))
             continue
         u = p - np.roll(p, 1, axis=0)
         v = np.roll(p, -1, axis=0) - p
@@ -91,7 +94,7 @@ def breaks(polys: list[np.ndarray], width: float, height: float) -> list[np.ndar
         cos = (u * v).sum(axis=1) / np.maximum(norm, 1e-300)
         corner = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
         frame = (p[:, 0] <= 0) | (p[:, 0] >= width) | (p[:, 1] <= 0) | (p[:, 1] >= height)
-        junction = np.array([len(nb.get(x, ())) != 2 for x in k.tolist()])
+        junction = degree[vid[s0:s0 + n]] != 2
         out.append(corner | frame | junction)
     return out
 
@@ -261,8 +264,11 @@ def drawn_regions(regions: list, width: float, height: float, step: float) -> li
         New regions sharing the patches.
     """
     polys = [np.asarray(p, np.float64) for r in regions for p in r.outline]
-    brk = iter(breaks(polys, width, height))
-    dense = iter([densify(p, next(brk), step) for p in polys])
+    brk = breaks(polys, width, height)
+    # the curves' length bounds their pieces: longer pieces where they would be too many
+    length = sum(float(np.hypot(*np.diff(np.vstack([p, p[:1]]), axis=0).T).sum()) for p in polys if len(p))
+    step = max(step, 3.0 * length / MAX_DRAWN)
+    dense = iter([densify(p, b, step) for p, b in zip(polys, brk)])
     return [replace(r, outline=[next(dense) for _ in r.outline]) for r in regions]
 
 

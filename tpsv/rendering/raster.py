@@ -45,6 +45,7 @@ import numpy as np
 
 from .. import tps
 from ..errors import TpsvError
+from ..geometry import curves
 from ..image import to_uint8, to_uint16
 from ..gpu import resolve_device, warp
 from .borders import BorderMix
@@ -240,8 +241,9 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
     ks = kernels if kernels is not None else tps.group_kernels(model)
     if ks.grid.shape[0] != len(model.regions):
         raise TpsvError("the kernel set does not belong to this model")
-    maps = BandMaps(model, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
-    borders = DeviceBorders(model, W, H, device) if antialias else None
+    drawn = curves.as_drawn(model, W, H)
+    maps = BandMaps(drawn, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
+    borders = DeviceBorders(drawn, W, H, device) if antialias else None
     dk = gtps.solve(gtps.upload(ks, device), threads=threads)
     dd = device_detail(model, device)
     for y0 in range(0, H, rows):
@@ -507,13 +509,15 @@ class Renderer:
         if self._size != (W, H):
             # the old size's device arrays go before the new ones come
             self._size, self._outlines, self._borders = (W, H), None, None
+            # the outlines as drawn at this size (curves as fine polygons), made once for both
+            self._drawn = curves.as_drawn(self.model, W, H)
 
     def _outlines_for(self, W: int, H: int):
         from ..gpu.regions import DeviceOutlines
 
         self._for_size(W, H)
         if self._outlines is None:
-            self._outlines = DeviceOutlines(self.model, W, H, self.device, self.threads)
+            self._outlines = DeviceOutlines(self._drawn, W, H, self.device, self.threads)
         return self._outlines
 
     def _borders_for(self, W: int, H: int):
@@ -521,7 +525,7 @@ class Renderer:
 
         self._for_size(W, H)
         if self._borders is None:
-            self._borders = DeviceBorders(self.model, W, H, self.device)
+            self._borders = DeviceBorders(self._drawn, W, H, self.device)
         return self._borders
 
     def render(self, width=None, height=None, scale=None, antialias: bool = True, alpha: bool = False,
