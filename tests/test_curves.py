@@ -39,7 +39,7 @@ def test_junctions_and_the_frame_break_the_curve():
 def test_the_curve_passes_through_the_vertices_and_follows_a_circle():
     p = circle(16)
     brk = curves.breaks([p], 64, 64)[0]
-    drawn = curves.densify(p, brk, 0.1)
+    drawn = curves.densify(p, brk, 0.001)
     for v in p:
         assert np.hypot(*(drawn - v).T).min() == 0.0
     assert np.abs(np.hypot(drawn[:, 0] - 32, drawn[:, 1] - 32) - 20).max() < 0.015
@@ -79,7 +79,7 @@ def test_simplify_keeps_few_vertices_within_the_tolerance():
     brk = np.zeros(len(v), bool)
     brk[0] = brk[-1] = True
     # its curve (closed back along a straight chord, which is a break at both ends) stays on the circle
-    drawn = curves.densify(v, brk, 0.05)
+    drawn = curves.densify(v, brk, 0.001)
     on_arc = drawn[np.hypot(drawn[:, 0] - 32, drawn[:, 1] - 32) > 19]
     assert np.abs(np.hypot(on_arc[:, 0] - 32, on_arc[:, 1] - 32) - 20).max() <= 0.041
     # a polygon needs chords of at most sqrt(8 r tol) = 2.5 px: 26 vertices for this half circle; the curve far fewer

@@ -330,7 +330,7 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     if rgb is None:
         return Geometry(regions=regions, index=index)
     h, w = index.shape
-    blur = edge_widths(rgb, curves.drawn_regions(regions, w, h, curves.DRAWN_STEP), index)
+    blur = edge_widths(rgb, curves.drawn_regions(regions, w, h, curves.DRAWN_TOL), index)
     return Geometry(regions=regions, index=index, blur=blur, curves=True)
 
 

@@ -147,8 +147,8 @@ def export_pdf(model, tolerance: float = DEFAULT_TOLERANCE, detail: bool = True,
     from ..geometry.curves import as_drawn
     from ..rendering.pixelmap import draw_order, region_index
 
-    # outlines drawn as curves become fine polygons (pieces of half a model pixel: at 8x zoom
-    # within 0.05 device pixel of the curve wherever it bends by less than a 5 px radius)
+    # outlines drawn as curves become polygons within 0.01 model px of them (finer ones
+    # made the soft-edge ribbons a lattice of slivers: 41.1 -> 38.9 dB in pdfium, test_export)
     model = as_drawn(model)
 
     vector = model if model.detail is None else _without_detail(model)

@@ -27,7 +27,7 @@ two breaks is straight. Reversing a polygon gives the same curve, run
 backwards.
 
 The drawn outlines (:func:`drawn_regions`) are polygons fine enough for the
-output (pieces of at most :data:`DRAWN_STEP` output pixels); every stage that
+output (within :data:`DRAWN_TOL` output pixels of the curve); every stage that
 rasterises outlines (region map, border coverage, the encoder's maps) takes
 them, so what is fitted is what is drawn.
 """
@@ -41,10 +41,11 @@ import numpy as np
 
 #: A vertex turning by more than this (degrees) between its two edges is a corner.
 CORNER_TURN = 35.0
-#: Longest piece of a drawn curve, output pixels (the chord of an arc of radius 5 px
-#: over half a pixel lies within 0.006 px of it).
-DRAWN_STEP = 0.5
-#: Most pieces of all drawn curves of one output (a hostile file's far-flung vertices get longer pieces).
+#: How far (output pixels) a drawn curve's pieces may pass from the curve. The pieces of a
+#: segment follow from its Bezier points (Wang's bound), so a nearly straight segment is one
+#: piece and magnifying costs pieces only as the square root of the scale.
+DRAWN_TOL = 0.01
+#: Most pieces of all drawn curves of one output (a hostile file's far-flung vertices get coarser pieces).
 MAX_DRAWN = 1 << 22
 
 
@@ -135,8 +136,20 @@ def hermite(p: np.ndarray, brk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return m0, m1
 
 
-def densify(p: np.ndarray, brk: np.ndarray, step: float) -> np.ndarray:
-    """The curve of a closed polygon as a polygon of pieces no longer than about ``step``.
+def _pieces(p: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.ndarray:
+    """Pieces per segment that keep a polygon within ``tol`` of each segment's curve.
+
+    Wang's bound for a cubic Bezier ``b0..b3`` cut into ``n`` equal parameter
+    steps: the chords stay within ``3/4 max|b_i - 2 b_(i+1) + b_(i+2)| / n^2`` of the curve.
+    """
+    q = np.roll(p, -1, axis=0)
+    b1, b2 = p + m0 / 3.0, q - m1 / 3.0
+    d = np.maximum(np.hypot(*(p - 2 * b1 + b2).T), np.hypot(*(b1 - 2 * b2 + q).T))
+    return np.maximum(1, np.ceil(np.sqrt(0.75 * d / tol))).astype(np.int64)
+
+
+def densify(p: np.ndarray, brk: np.ndarray, tol: float) -> np.ndarray:
+    """The curve of a closed polygon as a polygon within ``tol`` of it.
 
     Every vertex of ``p`` is a vertex of the result; a straight segment
     (between two breaks) is not cut.
@@ -147,10 +160,7 @@ def densify(p: np.ndarray, brk: np.ndarray, step: float) -> np.ndarray:
         return p.copy()
     m0, m1 = hermite(p, brk)
     nxt = np.roll(p, -1, axis=0)
-    straight = brk & np.roll(brk, -1)
-    # the curve is no longer than its control polygon p, p + m0/3, q - m1/3, q
-    reach = np.hypot(*(m0 / 3).T) + np.hypot(*((nxt - m1 / 3) - (p + m0 / 3)).T) + np.hypot(*(m1 / 3).T)
-    count = np.where(straight, 1, np.maximum(1, np.ceil(reach / step))).astype(np.int64)
+    count = _pieces(p, m0, m1, tol)
     seg = np.repeat(np.arange(n), count)
     s = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)) / count[seg]
     s = s[:, None]
@@ -247,7 +257,7 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
             return np.flatnonzero(keep)
 
 
-def drawn_regions(regions: list, width: float, height: float, step: float) -> list:
+def drawn_regions(regions: list, width: float, height: float, tol: float) -> list:
     """``regions`` with each outline replaced by its curve as a fine polygon (:func:`densify`).
 
     Parameters
@@ -255,8 +265,8 @@ def drawn_regions(regions: list, width: float, height: float, step: float) -> li
     regions : list of Region
     width, height : float
         The model's pixel space.
-    step : float
-        Longest piece, in the model's pixels.
+    tol : float
+        How far the polygons may pass from the curves, in the model's pixels.
 
     Returns
     -------
@@ -265,26 +275,27 @@ def drawn_regions(regions: list, width: float, height: float, step: float) -> li
     """
     polys = [np.asarray(p, np.float64) for r in regions for p in r.outline]
     brk = breaks(polys, width, height)
-    # the curves' length bounds their pieces: longer pieces where they would be too many
-    length = sum(float(np.hypot(*np.diff(np.vstack([p, p[:1]]), axis=0).T).sum()) for p in polys if len(p))
-    step = max(step, 3.0 * length / MAX_DRAWN)
-    dense = iter([densify(p, b, step) for p, b in zip(polys, brk)])
+    # pieces go as 1 / sqrt(tol): where they would be too many, a coarser tolerance
+    total = sum(int(_pieces(p, *hermite(p, b), tol).sum()) for p, b in zip(polys, brk) if len(p) >= 3)
+    if total > MAX_DRAWN:
+        tol *= (total / MAX_DRAWN) ** 2
+    dense = iter([densify(p, b, tol) for p, b in zip(polys, brk)])
     return [replace(r, outline=[next(dense) for _ in r.outline]) for r in regions]
 
 
 def as_drawn(model, out_width: int | None = None, out_height: int | None = None):
     """``model`` as its outlines are drawn at an output size: itself when it has no curves, else a
-    copy whose outlines are fine polygons (:func:`drawn_regions`, pieces of at most
-    :data:`DRAWN_STEP` output pixels) and ``curves`` off.
+    copy whose outlines are polygons within :data:`DRAWN_TOL` output pixels of the curves
+    (:func:`drawn_regions`) and ``curves`` off.
     """
     if not getattr(model, "curves", False):
         return model
     k = max(float(out_width or model.width) / model.width, float(out_height or model.height) / model.height)
     out = copy.copy(model)  # (a Model, or anything with its regions, size and curves)
-    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_STEP / max(k, 1e-9))
+    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_TOL / max(k, 1e-9))
     out.curves = False
     return out
 
 
-__all__ = ["CORNER_TURN", "DRAWN_STEP", "as_drawn", "beziers", "breaks", "densify", "drawn_regions", "hermite",
+__all__ = ["CORNER_TURN", "DRAWN_TOL", "as_drawn", "beziers", "breaks", "densify", "drawn_regions", "hermite",
            "simplify_open"]

@@ -69,7 +69,7 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
         regions.append(Region(label=label, outline=polys, patch=patch.build_patch(mask, polys)))
     if not regions:
         raise TpsvError("label map has no regions")
-    drawn = regions if rgb is None else curves.drawn_regions(regions, w, h, curves.DRAWN_STEP)
+    drawn = regions if rgb is None else curves.drawn_regions(regions, w, h, curves.DRAWN_TOL)
     index = outline.rasterize_regions(drawn, w, h, src_size=(w, h))
     return regions, index
 
