@@ -171,21 +171,6 @@ def densify(p: np.ndarray, brk: np.ndarray, tol: float) -> np.ndarray:
     return out
 
 
-def beziers(p: np.ndarray, brk: np.ndarray) -> np.ndarray:
-    """The curve of a closed polygon as cubic Bezier segments (exact).
-
-    Returns
-    -------
-    ndarray (n, 4, 2)
-        Control points of segment ``i``: vertex ``i``, two inner points,
-        vertex ``i + 1``.
-    """
-    p = np.asarray(p, np.float64)
-    m0, m1 = hermite(p, brk)
-    q = np.roll(p, -1, axis=0)
-    return np.stack([p, p + m0 / 3.0, q - m1 / 3.0, q], axis=1)
-
-
 #: Pieces per segment where :func:`simplify_open` measures a curve.
 _MEASURE = 32
 
@@ -297,5 +282,5 @@ def as_drawn(model, out_width: int | None = None, out_height: int | None = None)
     return out
 
 
-__all__ = ["CORNER_TURN", "DRAWN_TOL", "as_drawn", "beziers", "breaks", "densify", "drawn_regions", "hermite",
+__all__ = ["CORNER_TURN", "DRAWN_TOL", "as_drawn", "breaks", "densify", "drawn_regions", "hermite",
            "simplify_open"]
