@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+from scipy.signal import savgol_coeffs
 
 from . import curves, outline
 
@@ -652,10 +653,11 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
     points (their fields add up to 1 there), in opposite directions. Each
     such run is simplified once and both sides keep the same points, so the
     outlines stay one curve (and the file stores it once, ``tpsv.codec.chains``).
-    A run keeps the points whose curve (``tpsv.geometry.curves``: its ends
-    and corners breaks) stays within each point's tolerance of all of them,
-    from Ramer-Douglas-Peucker at three times the tolerance (which keeps the
-    corners).
+    Each run is first smoothed (:func:`_smooth_run`; both sides take the
+    smoothed points), then keeps the points whose curve
+    (``tpsv.geometry.curves``: its ends and corners breaks) stays within each
+    point's tolerance of all of them, added where the curve is farthest off
+    (``curves.simplify_open``, from the run's ends).
     """
     from ..codec import chains
 
@@ -673,7 +675,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
                 continue
             run = np.arange(a, b + 1)
             pts, t = _smooth_run(p[run % n]), tol[run % n]
-            kept = run[curves.simplify_open(pts, t, _rdp_open(pts, 1e9 * t))]
+            kept = run[curves.simplify_open(pts, t, np.array([0, len(pts) - 1]))]
             keep[i][kept % n] = True
             out[i][run % n] = pts
             q, j = (int(v) for v in part[i][b - 1])
@@ -699,18 +701,14 @@ def _smooth_run(p: np.ndarray) -> np.ndarray:
     cos = (u * v).sum(axis=1) / np.maximum(np.hypot(*u.T) * np.hypot(*v.T), 1e-300)
     pins = np.concatenate([[0], 1 + np.flatnonzero(cos < np.cos(np.radians(curves.CORNER_TURN))), [n - 1]])
     out = p.copy()
-    from scipy.signal import savgol_coeffs
-
     r = SMOOTH_WINDOW // 2
     w = savgol_coeffs(SMOOTH_WINDOW, SMOOTH_DEGREE)
     for a, b in zip(pins[:-1], pins[1:]):
-        if b - a < 3:
-            continue
         seg = p[a:b + 1]
-        # reflected about the fixed ends (odd extension): the ends stay, the run stays straight there
-        ext = np.vstack([2 * seg[0] - seg[r:0:-1], seg, 2 * seg[-1] - seg[-2:-r - 2:-1]]) if len(seg) > r + 1 else None
-        if ext is None:
-            continue
+        if len(seg) <= r + 1:
+            continue  # too short to smooth
+        # reflected about the fixed ends (odd extension): the ends stay where they are
+        ext = np.vstack([2 * seg[0] - seg[r:0:-1], seg, 2 * seg[-1] - seg[-2:-r - 2:-1]])
         sm = np.stack([np.convolve(ext[:, k], w, mode="valid") for k in range(2)], axis=1)
         out[a + 1:b] = sm[1:-1]
     return out
@@ -949,32 +947,6 @@ def _snap_to_grid(polys: list[np.ndarray], W: int, H: int, steps: list[np.ndarra
         q = np.where(torn[:, None], base, q)
         out.append(q / GRID)
     return out
-
-
-def _rdp_open(p: np.ndarray, tol: np.ndarray) -> np.ndarray:
-    """Indices kept by Ramer-Douglas-Peucker on an open chain, each point with its own tolerance."""
-    keep = np.zeros(len(p), bool)
-    keep[0] = keep[-1] = True
-    stack = [(0, len(p) - 1)]
-    while stack:
-        a, b = stack.pop()
-        if b - a < 2:
-            continue
-        seg = p[b] - p[a]
-        q = p[a + 1:b] - p[a]
-        L = float(np.hypot(*seg))
-        if L > 1e-12:
-            d = np.abs(q[:, 0] * seg[1] - q[:, 1] * seg[0]) / L
-        else:
-            d = np.hypot(q[:, 0], q[:, 1])
-        excess = d - tol[a + 1:b]
-        k = int(np.argmax(excess))
-        if excess[k] > 0:
-            m = a + 1 + k
-            keep[m] = True
-            stack.append((a, m))
-            stack.append((m, b))
-    return np.flatnonzero(keep)
 
 
 __all__ = ["BorderReading", "CONTRAST", "LOOSE_TOLERANCE", "PlaneFit", "SMOOTH_SIGMA", "TOLERANCE", "WINDOW", "fitted_outlines",
