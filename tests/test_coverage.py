@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 
 from tpsv.geometry.regions import build_regions
-from tpsv.gpu.coverage import DeviceBorders, border_mix
+from tpsv.gpu import pieces as gpieces
+from tpsv.gpu.coverage import APART_CELL, MAX_CELLS, DeviceBorders, border_mix
+from tpsv.gpu.pieces import DevicePieces, apart_host, one_of_each
 from tpsv.model import Features, Model, Params
-from tpsv.rendering.borders import Borders
+from tpsv.rendering import borders as hborders
+from tpsv.rendering.borders import Borders, outline_pieces
 from tpsv.rendering.pixelmap import region_index
 
 
@@ -213,3 +216,148 @@ def test_outlines_folded_over_a_small_canvas_go_to_the_host_search():
     top = db.mix(index[:5], 0, (None, index[5:]))
     low = db.mix(index[5:], 5, (index[:5], None))
     assert np.array_equal(np.concatenate([top.pixels, low.pixels + 5 * W]), host.pixels)
+
+
+# --------------------------------------------------------------------------- the preparation on the device
+
+
+def host_grid(m, W, H, cell, gw, gh):
+    """The pieces, grid and distance bound as the host prepared them: one copy of each, sorted by cell (stably)."""
+    a, d = one_of_each(*outline_pieces(m, W, H))
+    mid = a + 0.5 * d
+    c = (np.clip(np.floor(mid[:, 1] / cell), 0, gh - 1).astype(np.int64) * gw
+         + np.clip(np.floor(mid[:, 0] / cell), 0, gw - 1).astype(np.int64))
+    order = np.argsort(c, kind="stable")
+    start = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=gw * gh))]).astype(np.int32)
+    return a[order], d[order], start
+
+
+@pytest.mark.parametrize("seed, blur, scale", CASES)
+def test_pieces_and_grid_are_the_hosts(seed, blur, scale):
+    """The device cuts the host's pieces to the bit, in its order, and sorts one copy of each as the host did."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    a, d = outline_pieces(m, W, H)
+    p = DevicePieces(m, W, H, "cpu")
+    assert p.n == len(a) and not p.host_counted
+    assert np.array_equal(p.a.numpy(), a) and np.array_equal(p.d.numpy(), d)
+    db = DeviceBorders(m, W, H)
+    g = db.grid
+    ha, hd, hstart = host_grid(m, W, H, g.cell, g.gw, g.gh)
+    ga, gd = db.pieces()
+    start = g.start.numpy()
+    assert np.array_equal(ga, ha) and np.array_equal(gd, hd) and np.array_equal(start, hstart)
+    # shared borders kept once
+    assert db.n_pieces == len(ha) < len(a)
+    # each cell's run of pieces has its midpoints in that cell
+    mid = ga + 0.5 * gd
+    cells = np.repeat(np.arange(g.gw * g.gh), np.diff(start))
+    assert np.array_equal(np.clip(np.floor(mid[:, 0] / g.cell), 0, g.gw - 1), cells % g.gw)
+    assert np.array_equal(np.clip(np.floor(mid[:, 1] / g.cell), 0, g.gh - 1), cells // g.gw)
+    assert g.slack >= 0.5 * np.hypot(*hd.T).max()
+
+
+@pytest.mark.parametrize("W, host_counted", [(37, True), (185, False)])
+def test_lengths_near_whole_pixels_are_counted_by_the_host(W, host_counted):
+    """An edge (6, 8) long at scale 3.7 is 37.00000000000001 px (38 pieces): the host counts it, to be sure."""
+    m = blob_model(w=10, h=10, n=2, seed=3)
+    m.regions[0].outline = [m.regions[0].outline[0], np.array([[1.0, 1.0], [7.0, 9.0], [1.0, 9.0]])]
+    p = DevicePieces(m, W, W, "cpu")
+    a, d = outline_pieces(m, W, W)
+    # (at scale 18.5 the length is exactly 185: no doubt)
+    assert p.host_counted == host_counted
+    assert np.array_equal(p.a.numpy(), a) and np.array_equal(p.d.numpy(), d)
+
+
+def test_more_than_max_pieces_makes_longer_ones(monkeypatch):
+    """Past MAX_PIECES the host's step (from numpy's sum of lengths) cuts the outlines, as the host does."""
+    monkeypatch.setattr(gpieces, "MAX_PIECES", 300)
+    monkeypatch.setattr(hborders, "MAX_PIECES", 300)
+    m = blob_model(seed=1, blur=0.6)
+    W, H = round(m.width * 3.7), round(m.height * 3.7)
+    a, d = outline_pieces(m, W, H)
+    assert 300 < len(a) < 600 and np.hypot(*d.T).max() > 1.5
+    p = DevicePieces(m, W, H, "cpu")
+    assert p.host_counted and np.array_equal(p.a.numpy(), a) and np.array_equal(p.d.numpy(), d)
+    db = DeviceBorders(m, W, H)
+    g = db.grid
+    ga, gd = db.pieces()
+    ha, hd, hstart = host_grid(m, W, H, g.cell, g.gw, g.gh)
+    assert np.array_equal(ga, ha) and np.array_equal(gd, hd) and np.array_equal(g.start.numpy(), hstart)
+
+
+@pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 1.0), (2, 1.2, 3.7), (6, 0.8, 8.0)])
+def test_distance_bound_is_the_hosts_up_to_the_reach(seed, blur, scale):
+    """The device's distance transform is OpenCV's (to float32 rounding) below the reach, a lower bound above."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    db = DeviceBorders(m, W, H)
+    g = db.grid
+    assert g.blurred
+    a, d = db.pieces()
+    acell, aw, ah, ref = apart_host(a + 0.5 * d, g.slack, W, H, MAX_CELLS, APART_CELL)
+    assert (acell, aw) == (g.acell, g.aw)
+    got = g.apart.numpy().reshape(ah, aw).astype(np.float64)
+    tol = 1e-6 * np.maximum(ref, 1.0)
+    near = ref < db.reach_px
+    assert near.mean() > 0.1 and np.all(np.abs(got - ref)[near] <= tol[near])
+    assert np.all(got <= ref + tol) and np.all(got >= np.minimum(ref, db.reach_px) - tol)
+
+
+@pytest.mark.parametrize("seed, blur, scale", [(0, None, 3.7), (2, 1.2, 1.0), (6, 0.8, 8.0)])
+def test_mix_is_the_one_of_the_host_prepared_grid(seed, blur, scale):
+    """Borders mixed over the device's grid are those mixed over the grid the host prepared, bit for bit."""
+    from tpsv.gpu import warp
+
+    wp = warp()
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    idx = region_index(m, W, H)
+    db = DeviceBorders(m, W, H)
+    g = db.grid
+    dev = db.mix(idx)
+    # the same object over the host's pieces, cells and (blurred) distance bound
+    a, d, start = host_grid(m, W, H, g.cell, g.gw, g.gh)
+    g.a, g.d, g.start = (wp.array(v, dtype=t) for v, t in ((a, wp.vec2d), (d, wp.vec2d), (start, wp.int32)))
+    if g.blurred:
+        g.apart = wp.array(apart_host(a + 0.5 * d, g.slack, W, H, MAX_CELLS, APART_CELL)[3].ravel(), dtype=wp.float32)
+    host = db.mix(idx)
+    assert len(dev.pixels) > 100
+    for f in ("pixels", "other", "alpha", "xy"):
+        assert np.array_equal(getattr(dev, f), getattr(host, f)), f
+
+
+@pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 1.0), (2, 1.2, 8.0)])
+def test_region_limits_are_where_coverage_reaches_one(seed, blur, scale):
+    """Each region's limit is where its widest border's coverage reaches 1 - 1e-4 (plus 1e-6 px), within the reach."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    db = DeviceBorders(m, W, H)
+    g = db.grid
+    keys, sigma = g.keys.numpy(), g.sigma.numpy()
+    widest = np.zeros(g.n_regions)
+    np.maximum.at(widest, keys // g.n_regions, sigma)
+    np.maximum.at(widest, keys % g.n_regions, sigma)
+    limit = g.limit.numpy()
+    assert np.all(limit <= db.reach_px) and (widest > 0).any()
+    inside = limit < db.reach_px
+    assert np.all(Borders._coverage(limit - 1e-6 - 1e-9, widest)[inside] < 1.0 - 1e-4)
+    assert np.all(Borders._coverage(limit - 1e-6 + 1e-9, widest)[inside] >= 1.0 - 1e-4)
+
+
+def test_a_nearer_distance_bound_changes_no_pixel(monkeypatch):
+    """Outlines dense beside the bound's grid get exact distances over fewer cells: still a lower bound, same mix."""
+    m = blob_model(seed=2, blur=1.2)
+    W, H = round(m.width * 3.7), round(m.height * 3.7)
+    idx = region_index(m, W, H)
+    full = DeviceBorders(m, W, H)
+    monkeypatch.setattr(gpieces, "FAR", 2)
+    near = DeviceBorders(m, W, H)
+    a, d = near.pieces()
+    ref = apart_host(a + 0.5 * d, near.grid.slack, W, H, MAX_CELLS, APART_CELL)[3].ravel()
+    got = near.grid.apart.numpy()
+    # (capped a few cells out, short of the reach)
+    assert got.max() < near.reach_px <= full.grid.apart.numpy().max() and np.all(got <= ref + 1e-5)
+    one, two = full.mix(idx), near.mix(idx)
+    for f in ("pixels", "other", "alpha", "xy"):
+        assert np.array_equal(getattr(one, f), getattr(two, f)), f

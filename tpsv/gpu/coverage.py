@@ -2,11 +2,13 @@
 
 Render step 5 (:mod:`tpsv.rendering.borders` says what is computed) with one
 code path for the ``cpu`` and ``cuda`` devices. :class:`DeviceBorders` is
-prepared once per model and output size: the outline pieces, cut as
-``Borders`` cuts them, sorted into a uniform grid of square cells and
-uploaded once, with (for blurred borders) a lower bound of every pixel's
-distance to them. :meth:`DeviceBorders.mix_device` then takes a region
-map already on the device, in four small launches and two prefix sums:
+prepared once per model and output size, on the device from the outline
+vertices (:mod:`tpsv.gpu.pieces`: a few launches and one read-back of three
+numbers): the outline pieces, cut as ``Borders`` cuts them, sorted into a
+uniform grid of square cells, with (for blurred borders) a lower bound of
+every pixel's distance to them, and each region's distance beyond which
+none of its pixels mixes. :meth:`DeviceBorders.mix_device` then takes a
+region map already on the device, in four small launches and two prefix sums:
 
 1. one thread per :data:`GROUP` pixels of a row: which may mix? (sharp
    borders: the pixels with an 8-neighbour of another region; blurred
@@ -51,9 +53,10 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import BorderMix, Borders, edge_widths, outline_pieces
+from ..rendering.borders import BorderMix, Borders, edge_widths
 from . import resolve_device
 from . import warp as _warp
+from .pieces import DevicePieces, apart
 from .rasterise import _BAND_MIN, _launch_banded
 
 wp.set_module_options({"enable_backward": False})
@@ -86,7 +89,8 @@ class PieceGrid:
     Attributes
     ----------
     a, d : wp.array (n,) vec2d
-        Piece starts and vectors, output pixels.
+        Piece starts and vectors, output pixels (the first ``start[-1]``;
+        the second copies of shared pieces after them, never read).
     start : wp.array (gw * gh + 1,) int32
         First piece of each cell (row-major cells of ``cell x cell`` pixels).
     apart : wp.array (ah * aw,) float32
@@ -99,7 +103,8 @@ class PieceGrid:
     aw, acell : int
         The same for ``apart`` (width in cells, cell side).
     slack : float
-        Half the longest piece: no point of a piece is nearer than its midpoint less this.
+        Half the longest piece (of all, second copies too): no point of a piece is nearer than its
+        midpoint less this.
     rows : int
         Most rows of cells one search visits each side of the pixel's.
     blurred : int
@@ -446,72 +451,39 @@ def _compact(cand: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32), off
                              (wp.float64(y0 + yy) + wp.float64(0.5)) / ky)
 
 
-# --------------------------------------------------------------------------- host side
+@wp.kernel
+def _widest(keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
+            widest: wp.array(dtype=wp.float64)):
+    """Each region's widest border: blurred pair ``i`` widens both of its regions."""
+    i = wp.tid()
+    a = keys[i] / wp.int64(n_regions)
+    wp.atomic_max(widest, int(a), sigma[i])
+    wp.atomic_max(widest, int(keys[i] - a * wp.int64(n_regions)), sigma[i])
 
 
-def _limits(keys: np.ndarray, sigma: np.ndarray, n_regions: int, reach: float) -> np.ndarray:
+@wp.kernel
+def _limit(widest: wp.array(dtype=wp.float64), reach: wp.float64, limit: wp.array(dtype=wp.float64)):
     """Per region, a distance from its border beyond which none of its pixels mixes (at most ``reach``).
 
     Coverage grows with the distance and shrinks with the edge width, so a
     pixel of region ``r`` mixes (``alpha < 1 - 1e-4``) only nearer than where
-    the widest of ``r``'s borders reaches ``1 - 1e-4`` (by bisection, plus a
-    margin of 1e-6 px for rounding).
+    the widest of ``r``'s borders reaches ``1 - 1e-4`` (by bisection, with
+    the coverage :func:`_measure` computes, plus a margin of 1e-6 px).
     """
-    widest = np.zeros(n_regions)
-    if keys.size:
-        np.maximum.at(widest, keys // n_regions, sigma)
-        np.maximum.at(widest, keys % n_regions, sigma)
-    lo = np.zeros(n_regions)
-    hi = np.full(n_regions, reach + 1.0)
+    r = wp.tid()
+    s = widest[r]
+    lo = wp.float64(0.0)
+    hi = reach + wp.float64(1.0)
     for _ in range(50):  # to ~1e-14 px
-        mid = 0.5 * (lo + hi)
-        mixes = Borders._coverage(mid, widest) < 1.0 - 1e-4
-        lo = np.where(mixes, mid, lo)
-        hi = np.where(mixes, hi, mid)
-    return np.minimum(hi + 1e-6, reach)
+        mid = wp.float64(0.5) * (lo + hi)
+        if _coverage(mid, s) < _MIXED:
+            lo = mid
+        else:
+            hi = mid
+    limit[r] = wp.min(hi + wp.float64(1e-6), reach)
 
 
-def _apart(mid: np.ndarray, slack: float, width: int, height: int):
-    """A lower bound of every pixel's distance to the pieces, per cell of :data:`APART_CELL` pixels.
-
-    The exact distance between the cell's centre and the nearest centre of
-    a cell holding a midpoint, less a half-diagonal each side and half a
-    piece (and 1e-3 px for rounding).
-
-    Returns
-    -------
-    acell, aw, ah : int
-        Cell side, grid width and height in cells.
-    apart : ndarray (ah, aw) float32
-    """
-    import cv2
-
-    acell = max(APART_CELL, int(np.ceil(np.sqrt(width * height / MAX_CELLS))))
-    aw, ah = -(-width // acell), -(-height // acell)
-    empty = np.ones((ah, aw), np.uint8)
-    empty[np.clip(np.floor(mid[:, 1] / acell), 0, ah - 1).astype(np.int64),
-          np.clip(np.floor(mid[:, 0] / acell), 0, aw - 1).astype(np.int64)] = 0
-    dist = cv2.distanceTransform(empty, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64) * acell
-    return acell, aw, ah, np.maximum(dist - acell * np.sqrt(2.0) - slack - 1e-3, 0.0).astype(np.float32)
-
-
-def _one_of_each(a: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pieces less the second copy of each border that two regions share (the same piece, run backwards).
-
-    Both copies are the same points to within rounding, so the nearest foot
-    (and all that follows from it) is the same; the search reads half as many.
-    """
-    if not len(a):
-        return a, d
-    b = a + d
-    # endpoints in a fixed order, rounded (1e-7 px): a pair that rounds apart just stays twice
-    fwd = (a[:, 0] < b[:, 0]) | ((a[:, 0] == b[:, 0]) & (a[:, 1] <= b[:, 1]))
-    lo = np.where(fwd[:, None], a, b)
-    hi = np.where(fwd[:, None], b, a)
-    key = np.ascontiguousarray(np.round(np.hstack([lo, hi]) * 1e7).astype(np.int64))
-    _, first = np.unique(key.view(np.dtype((np.void, 32))).ravel(), return_index=True)
-    first.sort()
-    return a[first], d[first]
+# --------------------------------------------------------------------------- host side
 
 
 @dataclass
@@ -578,18 +550,20 @@ class DeviceBorders:
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
         self.reach_px = 0.5 + 3.0 * float(sigma.max(initial=0.0))
         self.halo = int(np.ceil(self.reach_px)) + 1
-        a, d = outline_pieces(model, self.width, self.height)
+        pieces = DevicePieces(model, self.width, self.height, self.device)
+        #: whether the host counted each edge's pieces (:mod:`tpsv.gpu.pieces`)
+        self.host_counted = pieces.host_counted
         self._host = None
-        if len(a) > DENSE_PIECES * self.width * self.height:
+        self._kept = None
+        self.grid = None
+        if pieces.n > DENSE_PIECES * self.width * self.height:
             # outlines folded over a few pixels (a hostile or degenerate file): an exact search
             # would visit thousands of pieces per pixel, the host's k-d tree a few
             self._host = Borders(model, self.width, self.height)
-            self.n_pieces, self.grid = len(a), None
+            self._kept = pieces.n
             return
-        a, d = _one_of_each(a, d)
-        self.n_pieces = len(a)
-        if not len(a):
-            self.grid = None
+        if pieces.n == 0:
+            self._kept = 0
             return
         # cells of about a quarter of the reach, a few pixels at least (a small table to build), few enough to hold
         if cell is None:
@@ -597,32 +571,43 @@ class DeviceBorders:
         cell = max(1, int(round(cell)), int(np.ceil(np.sqrt(self.width * self.height / MAX_CELLS))))
         gw = -(-self.width // cell)
         gh = -(-self.height // cell)
-        mid = a + 0.5 * d
-        # a midpoint off the grid goes to the nearest cell: no nearer to any pixel than it really is
-        cx = np.clip(np.floor(mid[:, 0] / cell), 0, gw - 1).astype(np.int64)
-        cy = np.clip(np.floor(mid[:, 1] / cell), 0, gh - 1).astype(np.int64)
-        c = cy * gw + cx
-        order = np.argsort(c, kind="stable")
-        count = np.bincount(c, minlength=gw * gh)
-        start = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
-        slack = 0.5 * float(np.hypot(*d.T).max())
+        a, d, start = pieces.grid(cell, gw, gh)
+        slack = 0.5 * pieces.longest
         # (sharp borders: only 8-neighbours of another region mix, all of them next to a piece)
-        acell, aw, ah = 1, 1, 1
-        apart = np.zeros(1, np.float32)
-        if self.reach_px > 1.0:
-            acell, aw, ah, apart = _apart(mid, slack, self.width, self.height)
+        blurred = self.reach_px > 1.0
+        if blurred:
+            acell, aw, _, apart_d = apart(a, d, start, slack, self.reach_px, self.width, self.height, MAX_CELLS,
+                                          APART_CELL, self.device)
+        else:
+            acell, aw, apart_d = 1, 1, wp.zeros(1, dtype=wp.float32, device=self.device)
 
-        def up(v, dtype):
-            return wp.array(np.ascontiguousarray(v), dtype=dtype, device=self.device)
-
-        g = PieceGrid(a=up(a[order], wp.vec2d), d=up(d[order], wp.vec2d), start=up(start, wp.int32),
-                      apart=up(apart.ravel(), wp.float32), limit=up(_limits(keys, sigma, nr, self.reach_px), wp.float64),
-                      gw=gw, gh=gh, cell=cell, aw=aw, acell=acell, slack=slack,
-                      rows=int(np.ceil((self.reach_px + slack) / cell)) + 2, blurred=int(self.reach_px > 1.0),
-                      keys=up(keys, wp.int64), sigma=up(sigma.astype(np.float64), wp.float64), n_regions=nr)
-        self.grid = g
+        dev = self.device
+        keys_d = wp.array(keys, dtype=wp.int64, device=dev)
+        sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
+        widest = wp.zeros(nr, dtype=wp.float64, device=dev)
+        if len(keys):
+            wp.launch(_widest, dim=len(keys), inputs=[keys_d, sigma_d, nr, widest], device=dev)
+        limit = wp.empty(nr, dtype=wp.float64, device=dev)
+        wp.launch(_limit, dim=nr, inputs=[widest, wp.float64(self.reach_px), limit], device=dev)
+        self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, gw=gw, gh=gh, cell=cell, aw=aw,
+                              acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
+                              blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr)
         self.cell = cell
         self.grid_shape = (gh, gw)
+
+    @property
+    def n_pieces(self) -> int:
+        """Outline pieces searched (one copy of each shared one; all of them where the host searches them)."""
+        if self._kept is None:
+            self._kept = int(self.grid.start[-1:].numpy()[0])  # (a read-back, on demand only)
+        return self._kept
+
+    def pieces(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pieces searched, downloaded: starts and vectors ``(n, 2)``, sorted by cell."""
+        if self.grid is None:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        n = self.n_pieces
+        return self.grid.a.numpy()[:n].reshape(-1, 2), self.grid.d.numpy()[:n].reshape(-1, 2)
 
     def _empty(self) -> DeviceBorderMix:
         dev = self.device
