@@ -45,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..rendering.borders import MAX_PIECES, PIECE_PX
+from ..rendering.borders import MAX_PIECES, piece_counts
 
 # fuse_fp off: the pieces must round as numpy's (no FMA), or a piece could move by an ulp on CUDA
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
@@ -342,19 +342,11 @@ class DevicePieces:
 
 def _host_counts(points: np.ndarray, nxt: np.ndarray, mw: float, mh: float, kx: float, ky: float):
     """Pieces of every edge and the longest piece, by ``outline_pieces``'s numpy (its step, its ``hypot``)."""
-    a, b = points, points[nxt]
-    frame = np.zeros(len(a), bool)
-    for axis, size in ((0, mw), (1, mh)):
-        for edge in (0.0, float(size)):
-            frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
-    k = np.array([kx, ky])
-    seg = np.hypot(*(b * k - a * k).T)
-    keep = ~frame & np.isfinite(seg)
-    counts = np.zeros(len(a), np.int64)
+    a, b, k = points, points[nxt], np.array([kx, ky])
+    counts = piece_counts(a, b, mw, mh, k)
+    keep = counts > 0
     if not keep.any():
         return counts, 0.0
-    step = max(PIECE_PX, float(seg[keep].sum()) / MAX_PIECES)
-    counts[keep] = np.maximum(1, np.ceil(seg[keep] / step)).astype(np.int64)
     d = (b * k - a * k)[keep] / counts[keep][:, None]
     return counts, float(np.hypot(*d.T).max())
 

@@ -121,23 +121,40 @@ def outline_pieces(model, width: int, height: int) -> tuple[np.ndarray, np.ndarr
         return none
     a = np.concatenate(ends)
     b = np.concatenate([np.roll(p, -1, axis=0) for p in ends])
-    frame = np.zeros(len(a), bool)
-    for axis, size in ((0, model.width), (1, model.height)):
-        for edge in (0.0, float(size)):
-            frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
-    a, b = a[~frame] * k, b[~frame] * k
-    seg = np.hypot(*(b - a).T)
-    ok = np.isfinite(seg)
-    a, b, seg = a[ok], b[ok], seg[ok]
-    if not len(a):
+    n = piece_counts(a, b, model.width, model.height, k)
+    keep = n > 0
+    if not keep.any():
         return none
-    step = max(PIECE_PX, float(seg.sum()) / MAX_PIECES)
-    n = np.maximum(1, np.ceil(seg / step)).astype(np.int64)
+    a, b, n = a[keep] * k, b[keep] * k, n[keep]
     i = np.repeat(np.arange(len(a)), n)
     first = np.cumsum(n) - n
     t0 = (np.arange(int(n.sum())) - first[i]) / n[i]
     d = (b - a)[i]
     return a[i] + t0[:, None] * d, d / n[i][:, None]
+
+
+def piece_counts(a: np.ndarray, b: np.ndarray, model_width: float, model_height: float, k: np.ndarray) -> np.ndarray:
+    """Pieces of every outline edge ``a -> b`` (model pixels) at output scale ``k``, as :func:`outline_pieces` cuts them.
+
+    0 for a run along the image's frame or an edge of no finite length; at
+    most :data:`PIECE_PX` output pixels a piece, longer where all the edges
+    would need more than :data:`MAX_PIECES` pieces.
+
+    Returns
+    -------
+    ndarray (len(a),) int64
+    """
+    frame = np.zeros(len(a), bool)
+    for axis, size in ((0, model_width), (1, model_height)):
+        for edge in (0.0, float(size)):
+            frame |= (a[:, axis] == edge) & (b[:, axis] == edge)
+    seg = np.hypot(*(b * k - a * k).T)
+    keep = ~frame & np.isfinite(seg)
+    counts = np.zeros(len(a), np.int64)
+    if keep.any():
+        step = max(PIECE_PX, float(seg[keep].sum()) / MAX_PIECES)
+        counts[keep] = np.maximum(1, np.ceil(seg[keep] / step)).astype(np.int64)
+    return counts
 
 
 class Borders:
@@ -307,4 +324,5 @@ class Borders:
         return other
 
 
-__all__ = ["BorderMix", "Borders", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces"]
+__all__ = ["BorderMix", "Borders", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
+           "piece_counts"]
