@@ -551,8 +551,6 @@ class DeviceBorders:
         self.reach_px = 0.5 + 3.0 * float(sigma.max(initial=0.0))
         self.halo = int(np.ceil(self.reach_px)) + 1
         pieces = DevicePieces(model, self.width, self.height, self.device)
-        #: whether the host counted each edge's pieces (:mod:`tpsv.gpu.pieces`)
-        self.host_counted = pieces.host_counted
         self._host = None
         self._kept = None
         self.grid = None

@@ -46,6 +46,7 @@ import numpy as np
 
 from .. import tps
 from ..errors import TpsvError
+from ..geometry import curves
 from ..gpu import resolve_device
 # Warp is imported with gpu.tps; this module exists only to render, so it pays for it on import
 from ..gpu import tps as gtps
@@ -198,6 +199,7 @@ class LiveImage:
         self._out = None
         self._pm = None  # PixelMap of the current geometry
         self._mix = None  # its anti-aliased border pixels and their (S, T) across
+        self._drawn = None  # the model as drawn at this size (curves as polygons), for the maps and borders
         self._shown = None  # _out with the borders mixed in
         self._duplicates = None  # duplicate groups of the current features' positions
         self._detail = (None, None)  # (Detail, DeviceDetail) last uploaded
@@ -266,7 +268,9 @@ class LiveImage:
         recomputed = full or not same_geometry(self.model, model)
         dirty = None if full else np.zeros(0, bool)
         if recomputed:
-            pm = pixel_map(model, W, H, self.device)
+            # the curves drawn once for the region map and the border coverage
+            self._drawn = curves.as_drawn(model, W, H)
+            pm = pixel_map(self._drawn, W, H, self.device)
             if not full:
                 dirty = changed_pixels(self._pm.index_d, pm.index_d, self._pm.st_d, pm.st_d)
             self.W, self.H = W, H
@@ -324,7 +328,7 @@ class LiveImage:
         the geometry stays.
         """
         if self._mix is None:
-            mix = DeviceBorders(model, self.W, self.H, self.device).mix_device(self._pm.index_d,
+            mix = DeviceBorders(self._drawn, self.W, self.H, self.device).mix_device(self._pm.index_d,
                                                                              threads=self.threads).numpy()
             self._mix = (mix, border_st(model, mix, self.device))
         mix, st = self._mix

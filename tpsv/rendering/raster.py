@@ -502,14 +502,14 @@ class Renderer:
         tick("solve")
         self._dd = device_detail(model, self.device)  # its upload counts as the detail stage
         tick("detail")
-        # the last output size rendered, and its DeviceOutlines and DeviceBorders once made
-        self._size, self._outlines, self._borders = None, None, None
+        # the last output size rendered, the model as drawn there, its DeviceOutlines and DeviceBorders once made
+        self._size, self._drawn, self._outlines, self._borders = None, None, None, None
 
     def _for_size(self, W: int, H: int) -> None:
         if self._size != (W, H):
             # the old size's device arrays go before the new ones come
             self._size, self._outlines, self._borders = (W, H), None, None
-            # the outlines as drawn at this size (curves as fine polygons), made once for both
+            # the outlines as drawn at this size (curves as polygons), made once for both
             self._drawn = curves.as_drawn(self.model, W, H)
 
     def _outlines_for(self, W: int, H: int):
