@@ -179,9 +179,10 @@ def mend(poly: np.ndarray, step: float = 0.0, max_crossings: int = MAX_MENDS, cu
         (:func:`crossings`).
     """
     p = np.asarray(poly)
-    if len(crossings(p, limit=1)) == 0:
+    found = len(crossings(p, limit=max_crossings + 1))
+    if found == 0:
         return poly
-    if len(crossings(p, limit=max_crossings + 1)) > max_crossings:
+    if found > max_crossings:
         raise TpsvError(f"an outline crosses itself more than {max_crossings} times")
     dtype = p.dtype
     p = p.astype(np.float64)
