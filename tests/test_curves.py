@@ -78,6 +78,59 @@ def test_simplify_keeps_few_vertices_within_the_tolerance():
     assert len(kept) <= 12
 
 
+def _simplify_one_at_a_time(p, tol, start):
+    """simplify_open as its rule reads: every segment measured on every round, one at a time."""
+    keep = np.zeros(len(p), bool)
+    keep[start] = True
+    keep[0] = keep[-1] = True
+    s = (np.arange(33) / 32)[:, None]
+    h = (2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2)
+    while True:
+        k = np.flatnonzero(keep)
+        v = p[k]
+        brk = np.zeros(len(v), bool)
+        brk[0] = brk[-1] = True
+        if len(v) >= 3:
+            u, w = v[1:-1] - v[:-2], v[2:] - v[1:-1]
+            norm = np.hypot(*u.T) * np.hypot(*w.T)
+            cos = (u * w).sum(axis=1) / np.maximum(norm, 1e-300)
+            brk[1:-1] = (norm == 0) | (cos < np.cos(np.radians(curves.CORNER_TURN)))
+        m0, m1 = curves.hermite(v, brk)
+        added = False
+        for j in range(len(k) - 1):
+            a, b = k[j], k[j + 1]
+            if b - a < 2:
+                continue
+            line = h[0] * v[j] + h[1] * m0[j] + h[2] * v[j + 1] + h[3] * m1[j]
+            q, la, d = p[a + 1:b], line[:-1], np.diff(line, axis=0)
+            dd = np.maximum((d * d).sum(axis=1), 1e-300)
+            t = np.clip(((q[:, None, :] - la[None]) * d[None]).sum(axis=2) / dd[None], 0.0, 1.0)
+            dist = np.sqrt(((q[:, None, :] - (la[None] + t[..., None] * d[None])) ** 2).sum(axis=2)).min(axis=1)
+            excess = dist - tol[a + 1:b]
+            worst = int(np.argmax(excess))
+            if excess[worst] > 0:
+                keep[a + 1 + worst] = True
+                added = True
+        if not added:
+            return np.flatnonzero(keep)
+
+
+def test_simplify_measures_segments_in_batches_as_one_at_a_time():
+    """The batched, memoised search keeps exactly the vertices of the plain rule (wiggly, cornered, ties)."""
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        m = int(rng.integers(2, 160))
+        turn = np.cumsum(rng.normal(0, 0.25, m))
+        p = np.cumsum(np.column_stack([np.cos(turn), np.sin(turn)]), axis=0) + rng.normal(0, 0.05, (m, 2))
+        if trial % 4 == 0:
+            p[rng.integers(0, m, 3)] += rng.normal(0, 2, (3, 2))
+        if trial % 7 == 0:
+            p = np.rint(p)  # repeated points and equal distances
+        tol = np.full(m, rng.choice([0.01, 0.05, 0.3])) * rng.uniform(0.5, 1.5, m)
+        start = np.unique(np.r_[0, m - 1, rng.integers(0, m, 2)])
+        assert np.array_equal(curves.simplify_open(p, tol, start), _simplify_one_at_a_time(p, tol, start))
+
+
 def test_the_flag_survives_the_file_and_old_files_are_polygons():
     from tpsv.model import Features, Model, Patch, Region
 

@@ -28,27 +28,41 @@ MIN_SHARED = 4
 
 
 def partners(polys: list[np.ndarray]) -> list[np.ndarray]:
-    """For every edge ``i -> i+1`` of every polygon: ``(polygon, edge)`` of its one reverse twin, or ``(-1, -1)``."""
-    seen: dict[tuple, list] = {}
-    for p, poly in enumerate(polys):
-        a = poly
-        b = np.roll(poly, -1, axis=0)
-        for i, key in enumerate(zip(a[:, 0].tolist(), a[:, 1].tolist(), b[:, 0].tolist(), b[:, 1].tolist())):
-            seen.setdefault(key, []).append((p, i))
-    out = []
-    for p, poly in enumerate(polys):
-        part = np.full((len(poly), 2), -1, np.int64)
-        a = poly
-        b = np.roll(poly, -1, axis=0)
-        for i, (x0, y0, x1, y1) in enumerate(zip(a[:, 0].tolist(), a[:, 1].tolist(), b[:, 0].tolist(),
-                                                 b[:, 1].tolist())):
-            if (x0, y0) == (x1, y1):
-                continue
-            twin = seen.get((x1, y1, x0, y0), ())
-            if len(twin) == 1 and len(seen[(x0, y0, x1, y1)]) == 1 and twin[0][0] != p:
-                part[i] = twin[0]
-        out.append(part)
-    return out
+    """For every edge ``i -> i+1`` of every polygon: ``(polygon, edge)`` of its one reverse twin, or ``(-1, -1)``.
+
+    Every directed edge is a key of its four integer coordinates; one sort of
+    all edges and their reversals groups equal keys, so a photo's hundreds of
+    thousands of contour points cost no Python loop.
+    """
+    polys = [np.asarray(p).reshape(-1, 2) for p in polys]
+    sizes = np.array([len(p) for p in polys], np.int64)
+    total = int(sizes.sum())
+    if total == 0:
+        return [np.full((0, 2), -1, np.int64) for _ in polys]
+    a = np.concatenate(polys).astype(np.int64)
+    b = np.concatenate([np.roll(p, -1, axis=0) for p in polys]).astype(np.int64)
+    poly = np.repeat(np.arange(len(polys)), sizes)
+    edge = np.arange(total) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    # group ids of the forward keys (a, b) and of the reversed ones (b, a), from one sort of both
+    keys = np.concatenate([np.column_stack([a, b]), np.column_stack([b, a])])
+    order = np.lexsort(keys.T[::-1])
+    step = np.ones(len(order), bool)
+    step[1:] = (keys[order[1:]] != keys[order[:-1]]).any(axis=1)
+    gid = np.empty(len(order), np.int64)
+    gid[order] = np.cumsum(step) - 1
+    fwd, rev = gid[:total], gid[total:]
+    count = np.bincount(fwd, minlength=int(gid.max()) + 1)  # edges with each key
+    owner = np.full(count.size, -1, np.int64)
+    owner[fwd] = np.arange(total)  # the edge of a key that one edge has
+    twin = owner[rev]
+    ok = (count[rev] == 1) & (count[fwd] == 1) & (a != b).any(axis=1)
+    ok &= poly[twin] != poly  # (twin is an edge wherever count[rev] == 1)
+    hit = np.flatnonzero(ok)
+    res = np.full((total, 2), -1, np.int64)
+    res[hit, 0] = poly[twin[hit]]
+    res[hit, 1] = edge[twin[hit]]
+    starts = np.cumsum(sizes) - sizes
+    return [res[s0:s0 + n] for s0, n in zip(starts.tolist(), sizes.tolist())]
 
 
 def cuts(part: list[np.ndarray], sizes: list[int]) -> list[np.ndarray]:

@@ -175,13 +175,37 @@ def densify(p: np.ndarray, brk: np.ndarray, tol: float) -> np.ndarray:
 _MEASURE = 32
 
 
-def _point_to_polyline(q: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Distance of each point of ``q`` (k, 2) to the polyline ``line`` (m, 2)."""
-    a, d = line[:-1], np.diff(line, axis=0)
-    dd = np.maximum((d * d).sum(axis=1), 1e-300)
-    t = np.clip(((q[:, None, :] - a[None]) * d[None]).sum(axis=2) / dd[None], 0.0, 1.0)
-    foot = a[None] + t[..., None] * d[None]
-    return np.sqrt(((q[:, None, :] - foot) ** 2).sum(axis=2)).min(axis=1)
+#: Points measured against their segments' curves at once in :func:`simplify_open` (memory of a batch).
+_BATCH = 1 << 15
+
+
+def _worst_points(p: np.ndarray, tol: np.ndarray, seg: np.ndarray, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per segment, its interior point farthest beyond its tolerance from the segment's curve.
+
+    ``seg`` (k, 2): the index range ``[a, b]`` of each segment's ends in ``p``;
+    ``lines`` (k, m, 2): each segment's curve as a polyline. Returns the
+    offset of the worst point past ``a`` and its excess, per segment (the
+    first of equals). A point's distance is to the nearest of its own
+    segment's pieces, in the same arithmetic whatever the batch.
+    """
+    inner = seg[:, 1] - seg[:, 0] - 1
+    owner = np.repeat(np.arange(len(seg)), inner)
+    first = np.cumsum(inner) - inner
+    idx = np.arange(int(inner.sum())) - np.repeat(first, inner) + np.repeat(seg[:, 0] + 1, inner)
+    a, d = lines[:, :-1], np.diff(lines, axis=1)
+    dd = np.maximum((d * d).sum(axis=2), 1e-300)
+    dist = np.empty(idx.size)
+    for lo in range(0, idx.size, _BATCH):
+        hi = min(lo + _BATCH, idx.size)
+        q, g = p[idx[lo:hi]], owner[lo:hi]
+        t = np.clip(((q[:, None, :] - a[g]) * d[g]).sum(axis=2) / dd[g], 0.0, 1.0)
+        foot = a[g] + t[..., None] * d[g]
+        dist[lo:hi] = np.sqrt(((q[:, None, :] - foot) ** 2).sum(axis=2)).min(axis=1)
+    excess = dist - tol[idx]
+    best = np.maximum.reduceat(excess, first)
+    at = np.flatnonzero(excess == best[owner])
+    _, pick = np.unique(owner[at], return_index=True)
+    return at[pick] - first, best
 
 
 def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -211,6 +235,12 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
     keep = np.zeros(len(p), bool)
     keep[np.asarray(start, np.int64)] = True
     keep[0] = keep[-1] = True
+    s = (np.arange(_MEASURE + 1) / _MEASURE)[:, None]
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    # A segment's curve depends on its two vertices and their kept neighbours only: one found
+    # within tolerance is not measured again while those four stay (the result is the same).
+    settled = set()
     while True:
         k = np.flatnonzero(keep)
         if len(k) < 3 and len(p) <= 2:
@@ -224,22 +254,26 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
             cos = (u * w).sum(axis=1) / np.maximum(norm, 1e-300)
             brk[1:-1] = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
         m0, m1 = hermite(v, brk)
-        s = (np.arange(_MEASURE + 1) / _MEASURE)[:, None]
-        h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
-        h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
-        added = False
-        for j in range(len(k) - 1):
-            a, b = k[j], k[j + 1]
-            if b - a < 2:
+        kl = k.tolist()
+        todo, keys = [], []
+        for j in range(len(kl) - 1):
+            if kl[j + 1] - kl[j] < 2:
                 continue
-            line = h00 * v[j] + h10 * m0[j] + h01 * v[j + 1] + h11 * m1[j]
-            excess = _point_to_polyline(p[a + 1:b], line) - tol[a + 1:b]
-            worst = int(np.argmax(excess))
-            if excess[worst] > 0:
-                keep[a + 1 + worst] = True
-                added = True
-        if not added:
-            return np.flatnonzero(keep)
+            key = (kl[j - 1] if j else -1, kl[j], kl[j + 1], kl[j + 2] if j + 2 < len(kl) else -1)
+            if key not in settled:
+                todo.append(j)
+                keys.append(key)
+        if not todo:
+            return k
+        j = np.asarray(todo)
+        lines = h00[None] * v[j][:, None] + h10[None] * m0[j][:, None] + h01[None] * v[j + 1][:, None] \
+            + h11[None] * m1[j][:, None]
+        worst, excess = _worst_points(p, tol, np.column_stack([k[j], k[j + 1]]), lines)
+        out = excess > 0
+        keep[k[j[out]] + 1 + worst[out]] = True
+        settled.update(key for key, o in zip(keys, out.tolist()) if not o)
+        if not out.any():
+            return k
 
 
 def drawn_regions(regions: list, width: float, height: float, tol: float) -> list:
