@@ -88,14 +88,7 @@ def _simplify_one_at_a_time(p, tol, start):
     while True:
         k = np.flatnonzero(keep)
         v = p[k]
-        brk = np.zeros(len(v), bool)
-        brk[0] = brk[-1] = True
-        if len(v) >= 3:
-            u, w = v[1:-1] - v[:-2], v[2:] - v[1:-1]
-            norm = np.hypot(*u.T) * np.hypot(*w.T)
-            cos = (u * w).sum(axis=1) / np.maximum(norm, 1e-300)
-            brk[1:-1] = (norm == 0) | (cos < np.cos(np.radians(curves.CORNER_TURN)))
-        m0, m1 = curves.hermite(v, brk)
+        m0, m1 = curves.hermite(v, curves.open_breaks(v))
         added = False
         for j in range(len(k) - 1):
             a, b = k[j], k[j + 1]

@@ -175,6 +175,18 @@ def densify(p: np.ndarray, brk: np.ndarray, tol: float) -> np.ndarray:
 _MEASURE = 32
 
 
+def open_breaks(v: np.ndarray) -> np.ndarray:
+    """Breaks of an open chain's curve (n,) bool: its ends and its corners (a turn over :data:`CORNER_TURN`)."""
+    brk = np.zeros(len(v), bool)
+    brk[0] = brk[-1] = True
+    if len(v) >= 3:
+        u, w = v[1:-1] - v[:-2], v[2:] - v[1:-1]
+        norm = np.hypot(*u.T) * np.hypot(*w.T)
+        cos = (u * w).sum(axis=1) / np.maximum(norm, 1e-300)
+        brk[1:-1] = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
+    return brk
+
+
 #: Points measured against their segments' curves at once in :func:`simplify_open` (memory of a batch).
 _BATCH = 1 << 15
 
@@ -246,14 +258,7 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
         if len(k) < 3 and len(p) <= 2:
             return k
         v = p[k]
-        brk = np.zeros(len(v), bool)
-        brk[0] = brk[-1] = True
-        if len(v) >= 3:
-            u, w = v[1:-1] - v[:-2], v[2:] - v[1:-1]
-            norm = np.hypot(*u.T) * np.hypot(*w.T)
-            cos = (u * w).sum(axis=1) / np.maximum(norm, 1e-300)
-            brk[1:-1] = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
-        m0, m1 = hermite(v, brk)
+        m0, m1 = hermite(v, open_breaks(v))
         kl = k.tolist()
         todo, keys = [], []
         for j in range(len(kl) - 1):
@@ -317,4 +322,4 @@ def as_drawn(model, out_width: int | None = None, out_height: int | None = None)
 
 
 __all__ = ["CORNER_TURN", "DRAWN_TOL", "as_drawn", "breaks", "densify", "drawn_regions", "hermite",
-           "simplify_open"]
+           "open_breaks", "simplify_open"]
