@@ -697,9 +697,7 @@ def _smooth_run(p: np.ndarray) -> np.ndarray:
     n = len(p)
     if n < 5:
         return p
-    u, v = p[1:-1] - p[:-2], p[2:] - p[1:-1]
-    cos = (u * v).sum(axis=1) / np.maximum(np.hypot(*u.T) * np.hypot(*v.T), 1e-300)
-    pins = np.concatenate([[0], 1 + np.flatnonzero(cos < np.cos(np.radians(curves.CORNER_TURN))), [n - 1]])
+    pins = np.flatnonzero(curves.open_breaks(p))  # its ends and corners
     out = p.copy()
     r = SMOOTH_WINDOW // 2
     w = savgol_coeffs(SMOOTH_WINDOW, SMOOTH_DEGREE)
