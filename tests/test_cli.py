@@ -80,6 +80,13 @@ def test_magnify_raster_and_tpsv(tmp_path, tpsv_file, small_png, small_rgb):
         r = run("magnify", src, "-o", out, "--factor", 3)
         assert r.exit_code == 0, r.output
         assert cv2.imread(str(out)).shape[:2] == (3 * h, 3 * w)
+    # the refinement's steps: 0 writes the fitted model's render as it is
+    plain, sharp = tmp_path / "plain.png", tmp_path / "sharp.png"
+    for out, steps in ((plain, 0), (sharp, 10)):
+        r = run("magnify", small_png, "-o", out, "--factor", 3, "--fit-iterations", 2, "--refine-iterations", steps)
+        assert r.exit_code == 0, r.output
+    assert not np.array_equal(cv2.imread(str(plain)), cv2.imread(str(sharp)))
+    assert run("magnify", small_png, "-o", plain, "--factor", 3, "--refine-iterations", -1).exit_code == 2
 
 
 def test_usage_errors_exit_2(tmp_path, tpsv_file):

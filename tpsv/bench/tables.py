@@ -230,7 +230,7 @@ def edit_table(model: Model, device: str) -> dict:
 
 def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
     """Area-downscale by ``factor``, magnify back (``tpsv.rendering.magnify``: dense model,
-    back-projected colours, one region); compare with the original."""
+    back-projected colours, one region, the picture refined); compare with the original."""
     h, w = rgb.shape[:2]
     h, w = h - h % factor, w - w % factor
     ref = rgb[:h, :w]

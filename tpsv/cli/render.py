@@ -145,20 +145,24 @@ def render(ctx, path, output, scale, size, antialias, format_name, quality, dept
               help="For raster input: label map whose region borders stay sharp (default: one region).")
 @click.option("--fit-iterations", type=click.IntRange(0, 50), default=6, show_default=True,
               help="For raster input: back-projection steps fitting the colours to the input.")
+@click.option("--refine-iterations", type=click.IntRange(0, 200), default=40, show_default=True,
+              help="For raster input: steps sharpening the edges of the written picture while keeping its "
+                   "area average equal to the input (least total variation; 0: the model's render as it is).")
 @click.option("--save-model", type=click.Path(dir_okay=False), default=None,
-              help="For raster input: also write the fitted dense model as .tpsv.")
+              help="For raster input: also write the fitted dense model as .tpsv (its render is the picture "
+                   "before the refinement).")
 @image_options()
 @device_option
 @json_option
 @click.pass_context
-def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, format_name, quality, depth,
-            device, as_json):
+def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations, save_model, format_name, quality,
+            depth, device, as_json):
     """Magnify PATH by --factor.
 
     PATH is a .tpsv (rendered at the scale), or a raster photo: then every pixel
     becomes a colour feature, the colours are fitted so that the magnified
-    render, area-averaged back, reproduces the photo, and the result is
-    rendered (tpsv.rendering.magnify).
+    render, area-averaged back, reproduces the photo, and the render's edges
+    are sharpened under the same constraint (tpsv.rendering.magnify, .refine).
     """
     check_json_target(as_json, output)
     if is_tpsv(path):
@@ -181,9 +185,9 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, save_model, forma
         # the renderer's size limits, checked before the fit rather than at its final render
         output_size(SimpleNamespace(width=w, height=h), width=size[0], height=size[1])
         fmt.check_size(*size)
-        with progress_bar(ctx, fit_iterations, "magnify") as bar:
+        with progress_bar(ctx, fit_iterations + refine_iterations, "magnify") as bar:
             model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device,
-                                        progress=advance(bar))
+                                        progress=advance(bar), refine_iterations=refine_iterations)
         seconds = time.perf_counter() - t0
         if save_model:
             out.write(save_model, encode_model(model))

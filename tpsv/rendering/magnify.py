@@ -8,8 +8,11 @@ vector outlines at any scale). A pixel of the input is the area average of
 the scene, not a point sample, so :func:`back_project` then adjusts the
 feature colours until the area-average of the magnified render reproduces
 the input (iterative back-projection; the render is linear in the feature
-colours before the gamut clamp). On the bundled samples this beats bicubic
-and Lanczos upscaling in PSNR (``tpsv bench``).
+colours before the gamut clamp). The picture written is that render refined
+by :func:`tpsv.rendering.refine.refine_magnified`, which sharpens its edges
+while keeping the same area average: the TPS is a smooth interpolant, and its
+edges widen with the factor. On the bundled samples the result beats bicubic
+and Lanczos upscaling in PSNR and GMSD (``tpsv bench``).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from ..geometry.regions import build_regions, to_patch_space
 from ..model import GRADATION, Features, Model, Params
 from ..errors import TpsvError
 from .raster import MAX_ARRAY_PIXELS, render
+from .refine import refine_magnified
 
 #: Params of a dense model: finest quantisation (bytes do not matter here), K = 32.
 DENSE_PARAMS = dict(kernel_size=32, overlap=0.5, st_steps=16, l_step=1, ab_step=1)
@@ -118,11 +122,33 @@ def magnify_raster(
     iterations: int = 6,
     device: str = "cpu",
     progress=None,
+    refine_iterations: int = 40,
 ) -> tuple[Model, np.ndarray]:
-    """Magnify a photo to ``size`` = (width, height): dense model + back-projection.
+    """Magnify a photo to ``size`` = (width, height): dense model + back-projection,
+    then edge-preserving refinement of the picture.
 
-    Returns the fitted model and the render at ``size``. ``progress``:
-    callable(done, total), called after each back-projection step.
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    size : (width, height)
+    labels : ndarray (H, W) int, optional
+        Label map whose region borders stay sharp vector outlines.
+    iterations : int
+        Back-projection steps of the model's colours.
+    device : str
+        Warp device of the renders.
+    progress : callable(done, total), optional
+        Called after each back-projection and each refinement step.
+    refine_iterations : int
+        Steps of :func:`tpsv.rendering.refine.refine_magnified` (0: the model's
+        render as it is). Only a picture larger than ``rgb`` is refined.
+
+    Returns
+    -------
+    model : Model
+        The fitted dense model (resolution-free; its render is the picture
+        before the refinement).
+    picture : ndarray (size[1], size[0], 3) float32
 
     Raises
     ------
@@ -134,7 +160,14 @@ def magnify_raster(
     if size[0] * size[1] > MAX_ARRAY_PIXELS:
         raise TpsvError(f"magnifying a raster to {size[0]}x{size[1]} px is beyond tpsv's limit "
                         f"({MAX_ARRAY_PIXELS:,} px); vectorize it and render the .tpsv instead")
+    h, w = rgb.shape[:2]
+    steps = refine_iterations if size[0] >= w and size[1] >= h and size != (w, h) else 0
+    total = iterations + steps
     model, pixel = dense_model(rgb, labels)
-    model = back_project(model, pixel, rgb, size, iterations=iterations, device=device, progress=progress)
-    return model, render(model, width=size[0], height=size[1], device=device)
+    model = back_project(model, pixel, rgb, size, iterations=iterations, device=device,
+                         progress=None if progress is None else lambda done, _: progress(done, total))
+    big = render(model, width=size[0], height=size[1], device=device)
+    big = refine_magnified(big, rgb, steps,
+                           progress=None if progress is None else lambda done, _: progress(iterations + done, total))
+    return model, big
 
