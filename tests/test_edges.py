@@ -288,6 +288,41 @@ def test_thin_regions_keep_their_pixels():
     assert np.count_nonzero(index == line) >= 12
 
 
+def test_a_region_pinched_in_two_by_its_colours_is_split_not_traced():
+    """Two dark squares joined in the label map by a bridge of the background's colour: the
+    field cuts the bridge, so each square becomes a region with a fitted outline (before, one
+    square was lost and the region fell back to its staircase outline)."""
+    size, density = 40, 8
+    yy, xx = (np.mgrid[:size * density, :size * density] + 0.5) / density
+    dark = ((xx > 4.3) & (xx < 16.3) | (xx > 23.7) & (xx < 35.7)) & (yy > 14.4) & (yy < 26.4)
+    fine = np.where(dark[..., None], np.float32(0.15), np.float32(0.8)) * np.ones(3, np.float32)
+    rgb = fine.reshape(size, density, size, density, 3).mean((1, 3))
+    labels = np.zeros((size, size), np.int32)
+    labels[14:26, 4:16] = labels[14:26, 24:36] = 1
+    labels[20, 16:24] = 1  # a one-pixel bridge between the squares, of the background's colour
+    regions, index = build_regions(labels, rgb)
+    assert sorted(r.label for r in regions) == [0, 1, 1]
+    square = [k for k, r in enumerate(regions) if r.label == 1]
+    # each square's pixels are its own region's, the bridge is the background's
+    for cols in (slice(5, 16), slice(24, 35)):
+        got = np.unique(index[15:26, cols])
+        assert got.size == 1 and got[0] in square
+    assert np.all(index[20, 18:22] == [k for k, r in enumerate(regions) if r.label == 0][0])
+    # fitted: the outlines lie on the squares' sub-pixel sides (traced, 0.3-0.4 px off), but for
+    # a vertex where the bridge left the right side of the left square
+    for k, (x0, x1) in zip(sorted(square, key=lambda k: regions[k].outline[0][:, 0].min()), ((4.3, 16.3), (23.7, 35.7))):
+        x, y = regions[k].outline[0].T
+        off = np.minimum(np.minimum(np.abs(x - x0), np.abs(x - x1)) + np.maximum(0, np.abs(y - 20.4) - 6),
+                         np.minimum(np.abs(y - 14.4), np.abs(y - 26.4)) + np.maximum(0, np.abs(x - (x0 + x1) / 2) - 6))
+        assert np.median(off) < 0.06 and np.mean(off < 0.15) >= 0.8
+    assert subpixel.split_pinched(subpixel.BorderReading(labels, rgb), labels, [0, 1],
+                                  [(slice(0, 40), slice(0, 40)), (slice(14, 26), slice(4, 36))]) is not None
+    # one square alone is not pinched
+    one = np.where(np.arange(size) < 20, labels, 0)
+    assert subpixel.split_pinched(subpixel.BorderReading(one, rgb), one, [0, 1],
+                                  [(slice(0, 40), slice(0, 40)), (slice(14, 26), slice(4, 20))]) is None
+
+
 def test_fitted_outlines_are_on_the_file_grid():
     """So quantisation leaves them unchanged and the encoder reuses its scale-1 maps."""
     from tpsv.codec.quant import OUTLINE_SCALE

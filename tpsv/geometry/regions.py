@@ -57,9 +57,16 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
     present = [i for i in range(n) if slices[i] is not None]
     fitted = [None] * len(present)
     if rgb is not None:
+        reading = subpixel.BorderReading(comp, rgb)
+        split = subpixel.split_pinched(reading, comp, present, [slices[i] for i in present])
+        if split is not None:
+            comp = segment.split_connected(split, min_size=1)
+            n = int(comp.max()) + 1
+            slices = ndimage.find_objects(comp + 1, max_label=n)
+            present = [i for i in range(n) if slices[i] is not None]
+            reading = subpixel.BorderReading(comp, rgb)
         # all at once: a border between two regions is simplified once, for both
-        fitted = subpixel.fitted_outlines(subpixel.BorderReading(comp, rgb), comp, present,
-                                          [slices[i] for i in present])
+        fitted = subpixel.fitted_outlines(reading, comp, present, [slices[i] for i in present])
     for i, polys in zip(present, fitted):
         sl = slices[i]
         mask = comp == i
