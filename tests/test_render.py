@@ -311,3 +311,19 @@ def test_a_renderer_prepared_once_renders_as_render_at_every_size(smooth_model):
     frame = r.render(scale=2, keep_on_device=True)
     assert np.array_equal(frame.numpy().reshape(96, 128, 3), render.render(smooth_model, scale=2))
     assert r.render(alpha=True).shape == (48, 64, 4)
+
+
+def test_a_renderer_puts_the_patches_on_the_device_once(smooth_model, monkeypatch):
+    """The patches do not depend on the output size: one upload per model, shared by the pixel
+    map and the border pixels (each frame built them twice before)."""
+    from tpsv.gpu import patchmap
+
+    built = []
+    real = patchmap.PatchSet.build.__func__
+    monkeypatch.setattr(patchmap.PatchSet, "build", classmethod(lambda cls, *a, **k: built.append(1) or real(cls, *a, **k)))
+    r = render.Renderer(smooth_model)
+    for scale in (1, 2.5, 3):
+        r.render(scale=scale)
+    assert len(built) == 1
+    render.render(smooth_model, scale=2)
+    assert len(built) == 2

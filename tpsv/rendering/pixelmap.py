@@ -177,7 +177,7 @@ class PixelMap:
 
 
 def pixel_map(model, width: int | None = None, height: int | None = None, device: str = "cpu",
-              tick: Callable[[str], None] = no_tick, outlines=None) -> PixelMap:
+              tick: Callable[[str], None] = no_tick, outlines=None, patch_set=None) -> PixelMap:
     """The pixel map of ``model`` at ``width x height`` (default: the model's size, scale 1).
 
     Parameters
@@ -191,6 +191,8 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
         Called with ``"regions"`` and ``"patchmap"`` after each stage.
     outlines : tpsv.gpu.regions.DeviceOutlines, optional
         The model's outlines already prepared on ``device`` for this size.
+    patch_set : tpsv.gpu.patchmap.PatchSet, optional
+        The model's patches already on ``device``.
 
     Returns
     -------
@@ -206,7 +208,8 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
         outlines = DeviceOutlines(model, W, H, device)
     index_d = outlines.index_device()
     tick("regions")
-    st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device)
+    st_d = inverse_map([r.patch for r in model.regions], index_d, (model.width, model.height), device=device,
+                       patch_set=patch_set)
     tick("patchmap")
     return PixelMap(index_d=index_d, st_d=st_d)
 

@@ -504,6 +504,20 @@ class Renderer:
         tick("detail")
         # the last output size rendered, the model as drawn there, its DeviceOutlines and DeviceBorders once made
         self._size, self._drawn, self._outlines, self._borders = None, None, None, None
+        self._patches = None
+
+    @property
+    def patch_set(self):
+        """The model's patches on the device (:class:`tpsv.gpu.patchmap.PatchSet`), made at first use.
+
+        Every frame maps its pixels and its border pixels through them; they do
+        not depend on the output size, so they are flattened and uploaded once.
+        """
+        if self._patches is None:
+            from ..gpu.patchmap import PatchSet
+
+            self._patches = PatchSet.build([r.patch for r in self.model.regions], self.device)
+        return self._patches
 
     def _for_size(self, W: int, H: int) -> None:
         if self._size != (W, H):
@@ -542,7 +556,7 @@ class Renderer:
             raise TpsvError(f"output {W}x{H} px is rendered in bands: use render_bands or render_png")
         if keep_on_device and alpha:
             raise TpsvError("keep_on_device renders RGB frames; alpha is on the host")
-        pm = pixel_map(model, W, H, self.device, tick, outlines=self._outlines_for(W, H))
+        pm = pixel_map(model, W, H, self.device, tick, outlines=self._outlines_for(W, H), patch_set=self.patch_set)
         mix = self._borders_for(W, H).mix_device(pm.index_d, threads=self.threads) if antialias else None
         # straight alpha changes which pixels mix: on the host; otherwise the border pixels stay on the device
         opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
@@ -561,7 +575,8 @@ class Renderer:
         H, W = index.shape[:2]
         out = gtps.rasterise(self._dk, index, st, threads=self.threads, clamp=self.clamp)
         tick("rasterise")
-        _mix_borders(self.model, self._dk, out, borders, self.threads, self.clamp)
+        if borders is not None and borders.pixels.size:
+            _mix_borders(self.model, self._dk, out, borders, self.threads, self.clamp, self.patch_set)
         tick("borders")
         _add_detail(self.model, out, index, st, self.device, self.threads, self._dd)
         tick("detail")
