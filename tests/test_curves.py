@@ -165,3 +165,19 @@ def test_a_curved_model_renders_its_curve(scale):
     assert worst[True] <= 0.015 + 0.71 / scale
     if scale == 8:
         assert worst[False] > 0.3  # the 16-gon's chords
+
+
+def test_densify_of_all_outlines_at_once_is_each_outline_alone():
+    """drawn_regions densifies every outline in one pass: the same polygons as one at a time."""
+    rng = np.random.default_rng(5)
+    polys = []
+    for n in (3, 4, 17, 60):
+        t = np.sort(rng.uniform(0, 2 * np.pi, n))
+        r = 10 + rng.uniform(-2, 2, n)
+        polys.append(np.stack([30 + r * np.cos(t), 30 + r * np.sin(t)], 1))
+    polys.append(np.array([[1.0, 1.0], [2.0, 2.0]]))  # too short for a curve: kept as is
+    brk = curves.breaks(polys, 60, 60)
+    for tol in (0.01, 0.001):
+        alone = [curves.densify(p, b, tol) for p, b in zip(polys, brk)]
+        together = curves._densify_all(polys, brk, tol)
+        assert all(np.array_equal(a, b) for a, b in zip(alone, together))

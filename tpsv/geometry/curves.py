@@ -116,7 +116,14 @@ def hermite(p: np.ndarray, brk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ``i`` to vertex ``i + 1``).
     """
     p = np.asarray(p, np.float64)
-    prev, nxt = np.roll(p, 1, axis=0), np.roll(p, -1, axis=0)
+    n = len(p)
+    return _hermite(p, np.asarray(brk, bool), (np.arange(n) - 1) % n, (np.arange(n) + 1) % n)
+
+
+def _hermite(p: np.ndarray, brk: np.ndarray, prev_i: np.ndarray, next_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hermite` of vertices whose polygon neighbours are ``p[prev_i]`` and ``p[next_i]``
+    (several polygons at once)."""
+    prev, nxt = p[prev_i], p[next_i]
     # centripetal knots: intervals are square roots of the chords
     t_in = np.sqrt(np.hypot(*(p - prev).T))
     t_out = np.sqrt(np.hypot(*(nxt - p).T))
@@ -127,7 +134,7 @@ def hermite(p: np.ndarray, brk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     smooth = ~brk & ok
     chord = nxt - p
     m0 = np.where(smooth[:, None], d * t_out[:, None], np.nan)
-    m1 = np.where(np.roll(smooth, -1)[:, None], np.roll(d, -1, axis=0) * t_out[:, None], np.nan)
+    m1 = np.where(smooth[next_i][:, None], d[next_i] * t_out[:, None], np.nan)
     both = np.isnan(m0[:, 0]) & np.isnan(m1[:, 0])
     m0 = np.where(np.isnan(m0), 2.0 * chord - m1, m0)
     m1 = np.where(np.isnan(m1), 2.0 * chord - m0, m1)
@@ -142,7 +149,11 @@ def _pieces(p: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.nda
     Wang's bound for a cubic Bezier ``b0..b3`` cut into ``n`` equal parameter
     steps: the chords stay within ``3/4 max|b_i - 2 b_(i+1) + b_(i+2)| / n^2`` of the curve.
     """
-    q = np.roll(p, -1, axis=0)
+    return _pieces_to(p, np.roll(p, -1, axis=0), m0, m1, tol)
+
+
+def _pieces_to(p: np.ndarray, q: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.ndarray:
+    """:func:`_pieces` of the segments ``p -> q``."""
     b1, b2 = p + m0 / 3.0, q - m1 / 3.0
     d = np.maximum(np.hypot(*(p - 2 * b1 + b2).T), np.hypot(*(b1 - 2 * b2 + q).T))
     return np.maximum(1, np.ceil(np.sqrt(0.75 * d / tol))).astype(np.int64)
@@ -281,7 +292,7 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
             return k
 
 
-def drawn_regions(regions: list, width: float, height: float, tol: float) -> list:
+def drawn_regions(regions: list, width: float, height: float, tol: float, brk: list | None = None) -> list:
     """``regions`` with each outline replaced by its curve as a fine polygon (:func:`densify`).
 
     Parameters
@@ -291,32 +302,69 @@ def drawn_regions(regions: list, width: float, height: float, tol: float) -> lis
         The model's pixel space.
     tol : float
         How far the polygons may pass from the curves, in the model's pixels.
+    brk : list of ndarray, optional
+        :func:`breaks` of the outlines (they depend on the geometry alone: a
+        caller drawing one model at several sizes finds them once).
 
     Returns
     -------
     list of Region
         New regions sharing the patches.
     """
-    polys = [np.asarray(p, np.float64) for r in regions for p in r.outline]
-    brk = breaks(polys, width, height)
-    # pieces go as 1 / sqrt(tol): where they would be too many, a coarser tolerance
-    total = sum(int(_pieces(p, *hermite(p, b), tol).sum()) for p, b in zip(polys, brk) if len(p) >= 3)
-    if total > MAX_DRAWN:
-        tol *= (total / MAX_DRAWN) ** 2
-    dense = iter([densify(p, b, tol) for p, b in zip(polys, brk)])
+    polys = [np.asarray(p, np.float64).reshape(-1, 2) for r in regions for p in r.outline]
+    if brk is None:
+        brk = breaks(polys, width, height)
+    dense = iter(_densify_all(polys, brk, tol))
     return [replace(r, outline=[next(dense) for _ in r.outline]) for r in regions]
 
 
-def as_drawn(model, out_width: int | None = None, out_height: int | None = None):
+def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float) -> list[np.ndarray]:
+    """:func:`densify` of every polygon, in one pass over all their vertices (the same numbers:
+    each vertex sees its own polygon's neighbours), with the tolerance made coarser where the
+    pieces would pass :data:`MAX_DRAWN`."""
+    curved = [len(p) >= 3 for p in polys]
+    if not any(curved):
+        return [p.copy() for p in polys]
+    sizes = np.array([len(p) for p, c in zip(polys, curved) if c], np.int64)
+    p = np.concatenate([q for q, c in zip(polys, curved) if c])
+    b = np.concatenate([q for q, c in zip(brk, curved) if c])
+    # each vertex's neighbours within its own polygon (np.roll's of each polygon at once)
+    start = np.repeat(np.cumsum(sizes) - sizes, sizes)
+    local = np.arange(p.shape[0]) - start
+    size = np.repeat(sizes, sizes)
+    prev_i = start + (local - 1) % size
+    next_i = start + (local + 1) % size
+    m0, m1 = _hermite(p, b, prev_i, next_i)
+    nxt = p[next_i]
+    count = _pieces_to(p, nxt, m0, m1, tol)
+    total = int(count.sum())
+    # pieces go as 1 / sqrt(tol): where they would be too many, a coarser tolerance
+    if total > MAX_DRAWN:
+        count = _pieces_to(p, nxt, m0, m1, tol * (total / MAX_DRAWN) ** 2)
+    seg = np.repeat(np.arange(p.shape[0]), count)
+    s = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)) / count[seg]
+    s = s[:, None]
+    s2, s3 = s**2, s**3
+    h00, h10 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s
+    h01, h11 = -2 * s3 + 3 * s2, s3 - s2
+    out = h00 * p[seg] + h10 * m0[seg] + h01 * nxt[seg] + h11 * m1[seg]
+    out[s[:, 0] == 0] = p[seg[s[:, 0] == 0]]  # vertices exactly as stored
+    # back into polygons: a polygon's pieces follow its vertices
+    ends = np.cumsum(np.add.reduceat(count, np.cumsum(sizes) - sizes))
+    pieces = iter(np.split(out, ends[:-1]))
+    return [next(pieces) if c else q.copy() for q, c in zip(polys, curved)]
+
+
+def as_drawn(model, out_width: int | None = None, out_height: int | None = None, brk: list | None = None):
     """``model`` as its outlines are drawn at an output size: itself when it has no curves, else a
     copy whose outlines are polygons within :data:`DRAWN_TOL` output pixels of the curves
-    (:func:`drawn_regions`) and ``curves`` off.
+    (:func:`drawn_regions`; ``brk``: the outlines' :func:`breaks` when known) and ``curves`` off.
     """
     if not getattr(model, "curves", False):
         return model
     k = max(float(out_width or model.width) / model.width, float(out_height or model.height) / model.height)
     out = copy.copy(model)  # (a Model, or anything with its regions, size and curves)
-    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_TOL / max(k, 1e-9))
+    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_TOL / max(k, 1e-9), brk)
     out.curves = False
     return out
 

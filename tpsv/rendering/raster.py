@@ -505,6 +505,7 @@ class Renderer:
         # the last output size rendered, the model as drawn there, its DeviceOutlines and DeviceBorders once made
         self._size, self._drawn, self._outlines, self._borders = None, None, None, None
         self._patches = None
+        self._breaks = None
 
     @property
     def patch_set(self):
@@ -523,8 +524,12 @@ class Renderer:
         if self._size != (W, H):
             # the old size's device arrays go before the new ones come
             self._size, self._outlines, self._borders = (W, H), None, None
-            # the outlines as drawn at this size (curves as polygons), made once for both
-            self._drawn = curves.as_drawn(self.model, W, H)
+            # the outlines as drawn at this size (curves as polygons), made once for both; where
+            # their curves break depends on the model alone
+            if self._breaks is None and getattr(self.model, "curves", False):
+                self._breaks = curves.breaks([p for r in self.model.regions for p in r.outline],
+                                             self.model.width, self.model.height)
+            self._drawn = curves.as_drawn(self.model, W, H, self._breaks)
 
     def _outlines_for(self, W: int, H: int):
         from ..gpu.regions import DeviceOutlines
