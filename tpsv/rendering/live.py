@@ -29,7 +29,8 @@ kernels, the rendered image) and brings them up to date for a new model:
    crosses to or from the host after a colour edit.
 5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.rendering.borders`)
    are mixed into a copy of that frame after every update; where they are and
-   their ``(S, T)`` across are found again only when the geometry changed.
+   their ``(S, T)`` across are found again, on the device, only when the
+   geometry changed.
 6. **Detail.** The detail layer (:mod:`tpsv.gpu.detail`) is added to every
    pixel of that copy; its texture is uploaded again only when it changed.
 
@@ -52,9 +53,10 @@ from ..gpu import resolve_device
 from ..gpu import tps as gtps
 from ..gpu import warp
 from ..gpu.coverage import DeviceBorders
+from ..gpu.patchmap import PatchSet, inverse_points_device
 from ..gpu.rasterise import changed_pixels, rasterise_dirty
 from .pixelmap import draw_order, pixel_map
-from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st, output_size
+from .raster import ONE_PIECE_PIXELS, Stopwatch, output_size
 
 
 @dataclass
@@ -198,7 +200,8 @@ class LiveImage:
         self._dk = None
         self._out = None
         self._pm = None  # PixelMap of the current geometry
-        self._mix = None  # its anti-aliased border pixels and their (S, T) across
+        self._mix = None  # its anti-aliased border pixels and their (S, T) across, on the device
+        self._patches = None  # the model's patches on the device (PatchSet), for both maps
         self._drawn = None  # the model as drawn at this size (curves as polygons), for the maps and borders
         self._shown = None  # _out with the borders mixed in
         self._duplicates = None  # duplicate groups of the current features' positions
@@ -270,7 +273,9 @@ class LiveImage:
         if recomputed:
             # the curves drawn once for the region map and the border coverage
             self._drawn = curves.as_drawn(model, W, H)
-            pm = pixel_map(self._drawn, W, H, self.device)
+            # the patches uploaded once for the pixels' (S, T) and the border pixels' across
+            self._patches = PatchSet.build([r.patch for r in model.regions], self.device)
+            pm = pixel_map(self._drawn, W, H, self.device, patch_set=self._patches)
             if not full:
                 dirty = changed_pixels(self._pm.index_d, pm.index_d, self._pm.st_d, pm.st_d)
             self.W, self.H = W, H
@@ -328,12 +333,15 @@ class LiveImage:
         the geometry stays.
         """
         if self._mix is None:
+            # found, and their (S, T) across, on the device: nothing crosses to the host
             mix = DeviceBorders(self._drawn, self.W, self.H, self.device).mix_device(self._pm.index_d,
-                                                                             threads=self.threads).numpy()
-            self._mix = (mix, border_st(model, mix, self.device))
+                                                                             threads=self.threads)
+            self._mix = (mix, inverse_points_device(self._patches, mix.other, mix.xy) if mix.n else None)
         mix, st = self._mix
         self._shown = warp().clone(self._out)
-        gtps.mix_border(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads, clamp=self.clamp)
+        if mix.n:
+            gtps.mix_border_device(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads,
+                                   clamp=self.clamp)
 
     def _add_detail(self, model) -> None:
         """Step 6: the detail layer added to the shown image (as ``render`` does)."""
