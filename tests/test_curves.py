@@ -181,3 +181,29 @@ def test_densify_of_all_outlines_at_once_is_each_outline_alone():
         alone = [curves.densify(p, b, tol) for p, b in zip(polys, brk)]
         together = curves._densify_all(polys, brk, tol)
         assert all(np.array_equal(a, b) for a, b in zip(alone, together))
+
+
+def test_drawn_regions_with_a_cache_draws_the_same_and_keeps_only_what_it_drew():
+    from tpsv.geometry.regions import build_regions
+
+    labels = np.zeros((40, 40), np.int32)
+    labels[8:30, 5:20] = 1
+    labels[12:34, 22:36] = 2
+    rgb = np.where(labels[..., None] > 0, 0.2, 0.8).astype(np.float32) * np.ones(3, np.float32)
+    regions, _ = build_regions(labels, rgb)
+    cache = {}
+    plain = curves.drawn_regions(regions, 40, 40, 0.005)
+    cached = curves.drawn_regions(regions, 40, 40, 0.005, cache=cache)
+    again = curves.drawn_regions(regions, 40, 40, 0.005, cache=cache)
+    for a, b, c in zip(plain, cached, again):
+        assert all(np.array_equal(p, q) and np.array_equal(p, t) for p, q, t in zip(a.outline, b.outline, c.outline))
+    assert len(cache) == sum(len(r.outline) for r in regions)
+    # one region moved: its outlines are drawn anew, the entries of the old ones dropped
+    moved = list(regions)
+    moved[1] = type(regions[1])(label=regions[1].label, outline=[p + 0.25 for p in regions[1].outline],
+                                patch=regions[1].patch)
+    redrawn = curves.drawn_regions(moved, 40, 40, 0.005, cache=cache)
+    fresh = curves.drawn_regions(moved, 40, 40, 0.005)
+    for a, b in zip(redrawn, fresh):
+        assert all(np.array_equal(p, q) for p, q in zip(a.outline, b.outline))
+    assert len(cache) == sum(len(r.outline) for r in moved)

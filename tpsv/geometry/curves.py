@@ -292,7 +292,8 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
             return k
 
 
-def drawn_regions(regions: list, width: float, height: float, tol: float, brk: list | None = None) -> list:
+def drawn_regions(regions: list, width: float, height: float, tol: float, brk: list | None = None,
+                  cache: dict | None = None) -> list:
     """``regions`` with each outline replaced by its curve as a fine polygon (:func:`densify`).
 
     Parameters
@@ -305,6 +306,10 @@ def drawn_regions(regions: list, width: float, height: float, tol: float, brk: l
     brk : list of ndarray, optional
         :func:`breaks` of the outlines (they depend on the geometry alone: a
         caller drawing one model at several sizes finds them once).
+    cache : dict, optional
+        Polygons drawn before, by their outline, breaks and tolerance: an
+        editor that moves one region draws only that region's outlines again.
+        It is left holding this call's polygons only.
 
     Returns
     -------
@@ -314,7 +319,17 @@ def drawn_regions(regions: list, width: float, height: float, tol: float, brk: l
     polys = [np.asarray(p, np.float64).reshape(-1, 2) for r in regions for p in r.outline]
     if brk is None:
         brk = breaks(polys, width, height)
-    dense = iter(_densify_all(polys, brk, tol))
+    if cache is None:
+        dense = iter(_densify_all(polys, brk, tol))
+    else:
+        keys = [(float(tol), p.tobytes(), np.asarray(b, bool).tobytes()) for p, b in zip(polys, brk)]
+        new = {k: i for i, k in enumerate(keys) if k not in cache}
+        drawn = _densify_all([polys[i] for i in new.values()], [brk[i] for i in new.values()], tol)
+        known = {k: cache[k] for k in keys if k not in new}
+        cache.clear()
+        cache.update(known)
+        cache.update(zip(new, drawn))
+        dense = iter([cache[k] for k in keys])
     return [replace(r, outline=[next(dense) for _ in r.outline]) for r in regions]
 
 
@@ -355,16 +370,17 @@ def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float) -> 
     return [next(pieces) if c else q.copy() for q, c in zip(polys, curved)]
 
 
-def as_drawn(model, out_width: int | None = None, out_height: int | None = None, brk: list | None = None):
+def as_drawn(model, out_width: int | None = None, out_height: int | None = None, brk: list | None = None,
+             cache: dict | None = None):
     """``model`` as its outlines are drawn at an output size: itself when it has no curves, else a
     copy whose outlines are polygons within :data:`DRAWN_TOL` output pixels of the curves
-    (:func:`drawn_regions`; ``brk``: the outlines' :func:`breaks` when known) and ``curves`` off.
+    (:func:`drawn_regions`, with its ``brk`` and ``cache``) and ``curves`` off.
     """
     if not getattr(model, "curves", False):
         return model
     k = max(float(out_width or model.width) / model.width, float(out_height or model.height) / model.height)
     out = copy.copy(model)  # (a Model, or anything with its regions, size and curves)
-    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_TOL / max(k, 1e-9), brk)
+    out.regions = drawn_regions(model.regions, model.width, model.height, DRAWN_TOL / max(k, 1e-9), brk, cache)
     out.curves = False
     return out
 

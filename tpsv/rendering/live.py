@@ -203,6 +203,7 @@ class LiveImage:
         self._mix = None  # its anti-aliased border pixels and their (S, T) across, on the device
         self._patches = None  # the model's patches on the device (PatchSet), for both maps
         self._drawn = None  # the model as drawn at this size (curves as polygons), for the maps and borders
+        self._drawn_cache = {}  # its polygons by outline: a deform draws only what moved
         self._shown = None  # _out with the borders mixed in
         self._duplicates = None  # duplicate groups of the current features' positions
         self._detail = (None, None)  # (Detail, DeviceDetail) last uploaded
@@ -272,7 +273,7 @@ class LiveImage:
         dirty = None if full else np.zeros(0, bool)
         if recomputed:
             # the curves drawn once for the region map and the border coverage
-            self._drawn = curves.as_drawn(model, W, H)
+            self._drawn = curves.as_drawn(model, W, H, cache=self._drawn_cache)
             # the patches uploaded once for the pixels' (S, T) and the border pixels' across
             self._patches = PatchSet.build([r.patch for r in model.regions], self.device)
             pm = pixel_map(self._drawn, W, H, self.device, patch_set=self._patches)
