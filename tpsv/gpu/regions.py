@@ -243,29 +243,30 @@ def _nearest(cov: wp.array2d(dtype=wp.int32), cov_row0: int, height: int, y: int
 @wp.kernel
 def _find_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), height: int,
                row0: int, search: int, found: wp.array2d(dtype=wp.int32), unresolved: wp.array(dtype=wp.int32)):
-    """The region of every uncovered pixel of row ``y = row0 + tid`` into ``found[y]`` (same column)."""
-    y = row0 + wp.tid()
+    """The region of uncovered pixel ``(row0 + i, x)`` (thread ``(i, x)``) into ``found`` (a thread a
+    pixel: a wide gap's searches run side by side, not one row's after another)."""
+    i, x = wp.tid()
+    y = row0 + i
     r = y - cov_row0
     if n_gap[r] == 0:
         return
-    for x in range(cov.shape[1]):
-        if cov[r, x] < 0:
-            lab = _nearest(cov, cov_row0, height, y, x, search)
-            found[y, x] = lab
-            if lab == UNRESOLVED:
-                unresolved[0] = 1
+    if cov[r, x] < 0:
+        lab = _nearest(cov, cov_row0, height, y, x, search)
+        found[y, x] = lab
+        if lab == UNRESOLVED:
+            unresolved[0] = 1
 
 
 @wp.kernel
 def _put_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), row0: int,
               found: wp.array2d(dtype=wp.int32)):
-    """Write ``found`` into the uncovered pixels of row ``row0 + tid`` (after every search has read them)."""
-    r = row0 + wp.tid() - cov_row0
+    """Write ``found`` into uncovered pixel ``(row0 + i, x)`` (after every search has read the map)."""
+    i, x = wp.tid()
+    r = row0 + i - cov_row0
     if n_gap[r] == 0:
         return
-    for x in range(cov.shape[1]):
-        if cov[r, x] < 0:
-            cov[r, x] = found[r + cov_row0, x]
+    if cov[r, x] < 0:
+        cov[r, x] = found[r + cov_row0, x]
 
 
 class DeviceOutlines:
@@ -403,10 +404,11 @@ class DeviceOutlines:
         large = (y1 - y0) * W >= _BAND_MIN
 
         def find(a, b):
-            wp.launch(_find_gaps, dim=b - a, inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, unresolved], device=dev)
+            wp.launch(_find_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, unresolved],
+                      device=dev)
 
         def put(a, b):
-            wp.launch(_put_gaps, dim=b - a, inputs=[cov, c0, n_gap, y0 + a, found], device=dev)
+            wp.launch(_put_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, y0 + a, found], device=dev)
 
         _launch_banded(_find_gaps, y1 - y0, large, dev, self.threads, find)
         _launch_banded(_put_gaps, y1 - y0, large, dev, self.threads, put)
