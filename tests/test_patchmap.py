@@ -79,3 +79,19 @@ def test_device_array_and_points(pm):
     idx2[0, 0] = -1
     got = pm.inverse_map_numpy(patches, idx2, (lab.shape[1], lab.shape[0]))
     assert np.allclose(got[0, 0], -1)
+
+
+def test_patch_set_built_with_a_cache_is_the_same():
+    """A cached build flattens only new patches and uploads the same arrays."""
+    from conftest import rect_patch
+    from tpsv.gpu import patchmap as pm
+
+    a, b = rect_patch(0, 0, 20, 10), rect_patch(20, 0, 15, 10, M=4)
+    moved = rect_patch(21, 1, 15, 10, M=4)
+    cache = {}
+    for patches in ([a, b], [a, b], [a, moved]):
+        plain = pm.PatchSet.build(patches)
+        cached = pm.PatchSet.build(patches, cache=cache)
+        for field in ("pos", "coef", "reg_i", "reg_f"):
+            assert np.array_equal(getattr(plain.arrays, field).numpy(), getattr(cached.arrays, field).numpy())
+        assert len(cache) == 2

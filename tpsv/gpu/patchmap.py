@@ -280,7 +280,7 @@ class PatchSet:
     device: str
 
     @classmethod
-    def build(cls, patches, device: str = "cpu") -> "PatchSet":
+    def build(cls, patches, device: str = "cpu", cache: dict | None = None) -> "PatchSet":
         """Flatten ``patches`` (one per region) onto ``device``.
 
         Parameters
@@ -288,6 +288,10 @@ class PatchSet:
         patches : list of Patch
         device : str
             Warp device (``cpu``, ``cuda``, ``cuda:N``).
+        cache : dict, optional
+            Flattened patches of an earlier build, by their control points:
+            an editor that moves one region flattens only that patch again.
+            It is left holding this build's patches only.
 
         Returns
         -------
@@ -299,15 +303,20 @@ class PatchSet:
         reg_i = np.zeros((max(R, 1), 4), np.int32)
         reg_f = np.zeros((max(R, 1), 7), np.float32)
         po = co = 0
-        for r, patch in enumerate(patches):
+        flat = [_flatten(p) if cache is None else None for p in patches]
+        if cache is not None:
+            keys = [np.asarray(p.ctrl, np.float64).tobytes() for p in patches]
+            kept = {k: cache[k] for k in keys if k in cache}
+            cache.clear()
+            cache.update(kept)
+            for r, (k, patch) in enumerate(zip(keys, patches)):
+                if k not in cache:
+                    cache[k] = _flatten(patch)
+                flat[r] = cache[k]
+        for r, (patch, (P, K, f)) in enumerate(zip(patches, flat)):
             M, N = patch.shape
-            P = np.asarray(patch.ctrl, np.float64)[..., 0, :].reshape(-1, 2)
-            K = coefficients(patch).reshape(-1, 2)  # (cells * 16, 2) row-major (i, j, p, q)
             reg_i[r] = (M, N, po, co)
-            frame = affine_frame(patch)
-            if frame is not None:
-                O, A = frame
-                reg_f[r] = (1.0, O[0], O[1], *np.linalg.inv(A).ravel())
+            reg_f[r] = f
             pos_l.append(P)
             coef_l.append(K)
             po += P.shape[0]
@@ -320,6 +329,19 @@ class PatchSet:
         arrays.reg_i = wp.array(reg_i, dtype=wp.int32, device=device)
         arrays.reg_f = wp.array(reg_f, dtype=wp.float32, device=device)
         return cls(arrays=arrays, device=device)
+
+
+def _flatten(patch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A patch's corner points (k, 2), its cells' coefficients (cells * 16, 2) row-major
+    ``(i, j, p, q)``, and its ``reg_f`` row (1, origin, inverse of the affine map; zeros: not affine)."""
+    P = np.asarray(patch.ctrl, np.float64)[..., 0, :].reshape(-1, 2)
+    K = coefficients(patch).reshape(-1, 2)
+    f = np.zeros(7, np.float32)
+    frame = affine_frame(patch)
+    if frame is not None:
+        O, A = frame
+        f[:] = (1.0, O[0], O[1], *np.linalg.inv(A).ravel())
+    return P, K, f
 
 
 def _search(t_loc: float, n_itr: int, newton: int) -> Search:

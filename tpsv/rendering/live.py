@@ -202,6 +202,7 @@ class LiveImage:
         self._pm = None  # PixelMap of the current geometry
         self._mix = None  # its anti-aliased border pixels and their (S, T) across, on the device
         self._patches = None  # the model's patches on the device (PatchSet), for both maps
+        self._patch_cache = {}  # their flattened arrays by control points: a deform redoes one patch
         self._drawn = None  # the model as drawn at this size (curves as polygons), for the maps and borders
         self._drawn_cache = {}  # its polygons by outline: a deform draws only what moved
         self._shown = None  # _out with the borders mixed in
@@ -275,7 +276,7 @@ class LiveImage:
             # the curves drawn once for the region map and the border coverage
             self._drawn = curves.as_drawn(model, W, H, cache=self._drawn_cache)
             # the patches uploaded once for the pixels' (S, T) and the border pixels' across
-            self._patches = PatchSet.build([r.patch for r in model.regions], self.device)
+            self._patches = PatchSet.build([r.patch for r in model.regions], self.device, cache=self._patch_cache)
             pm = pixel_map(self._drawn, W, H, self.device, patch_set=self._patches)
             if not full:
                 dirty = changed_pixels(self._pm.index_d, pm.index_d, self._pm.st_d, pm.st_d)
