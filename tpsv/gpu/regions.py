@@ -5,10 +5,11 @@ edge of every outline, in its region's own frame exactly as
 :class:`tpsv.geometry.outline.Coverage` prepares it (that object does the
 arithmetic, so the edges are the same float64 values), binned by the bands
 of :data:`BAND` output rows it crosses, and uploaded once.
-:meth:`DeviceOutlines.index_device` then gives any band of rows in three
-launches, one thread per row each:
+:meth:`DeviceOutlines.index_device` then gives any band of rows in four
+launches:
 
-1. :func:`_fill_rows`: the crossings of the row with the edges of its bin
+1. :func:`_fill_rows` (a thread a row), then :func:`_fill_pixels` (a thread
+   a pixel, its span found by bisection): the crossings of the row with the edges of its bin
    (``xa + (y - ya) (xb - xa) / (yb - ya)``, the host's expression in its
    order; FMA contraction is off so that CUDA rounds as numpy does); the
    crossings of each region sorted and paired (even-odd), each span
@@ -16,7 +17,7 @@ launches, one thread per row each:
    start and written left to right, ``-1`` between them. Where spans
    overlap (an edit moved a region over others) the region drawn first
    keeps the pixel. These are exactly the pixels of ``Coverage.rows``.
-2. :func:`_find_gaps`: a pixel no polygon covers takes the region of the
+2. :func:`_find_gaps` (a thread a pixel): a pixel no polygon covers takes the region of the
    covered pixel nearest in the metric of the 5x5 chamfer distance transform
    that ``rasterize_regions`` runs (OpenCV's, integer weights), searched ring
    by ring out to :data:`SEARCH` pixels. Equally near pixels are chosen as
@@ -93,8 +94,15 @@ def _fill_rows(
     out_row0: int,
     out: wp.array2d(dtype=wp.int32),
     n_gap: wp.array(dtype=wp.int32),
+    spans: wp.array(dtype=wp.int32),
 ):
-    """Row ``row0 + tid`` of the coverage (``-1``: no polygon) into ``out[row0 + tid - out_row0]``, its uncovered pixels counted."""
+    """The spans of row ``row0 + tid`` of the coverage, its uncovered pixels counted.
+
+    Spans that do not overlap (the usual case) are left sorted in ``xs``/``rs``
+    and their count in ``spans[row]``, for :func:`_fill_pixels` to write a
+    thread a pixel; a row whose spans overlap is written here, ``spans[row]``
+    set to -1.
+    """
     y = row0 + wp.tid()
     orow = y - out_row0
     width = out.shape[1]
@@ -164,20 +172,11 @@ def _fill_rows(
         c = wp.max(c, int(xs[o0 + wp.int64(2 * p + 1)]))
     claimed = int(0)
     if overlap == 0:
-        c = int(0)
         for p in range(ns):
-            cl = int(xs[o0 + wp.int64(2 * p)])
-            cr = int(xs[o0 + wp.int64(2 * p + 1)])
-            lab = lut[rs[o0 + wp.int64(p)]]
-            for x in range(c, cl):
-                out[orow, x] = -1
-            for x in range(cl, cr):
-                out[orow, x] = lab
-            claimed += cr - cl
-            c = cr
-        for x in range(c, width):
-            out[orow, x] = -1
+            claimed += int(xs[o0 + wp.int64(2 * p + 1)]) - int(xs[o0 + wp.int64(2 * p)])
+        spans[orow] = ns
     else:
+        spans[orow] = -1
         # overlapping outlines (after an edit moved a region): the region drawn first keeps the pixel
         for x in range(width):
             out[orow, x] = -1
@@ -192,6 +191,33 @@ def _fill_rows(
                     if cur < 0:
                         claimed += 1
     n_gap[orow] = width - claimed
+
+
+@wp.kernel
+def _fill_pixels(rowstart: wp.array(dtype=wp.int64), xs: wp.array(dtype=wp.float64), rs: wp.array(dtype=wp.int32),
+                 lut: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.int32), row0: int, out_row0: int,
+                 out: wp.array2d(dtype=wp.int32)):
+    """Pixel ``(row0 + i, x)`` of a row whose spans do not overlap: its span's region, else -1."""
+    i, x = wp.tid()
+    y = row0 + i
+    orow = y - out_row0
+    ns = spans[orow]
+    if ns < 0:
+        return
+    o0 = rowstart[y]
+    # the last span starting at or before x (spans sorted by start, disjoint)
+    lo = int(0)
+    hi = ns
+    while lo < hi:
+        mid = (lo + hi) / 2
+        if int(xs[o0 + wp.int64(2 * mid)]) <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    lab = int(-1)
+    if lo > 0 and x < int(xs[o0 + wp.int64(2 * lo - 1)]):
+        lab = lut[rs[o0 + wp.int64(lo - 1)]]
+    out[orow, x] = lab
 
 
 @wp.func
@@ -367,11 +393,19 @@ class DeviceOutlines:
             n_gap.fill_(W)
             return out, n_gap
 
+        spans = wp.empty(y1 - y0, dtype=wp.int32, device=dev)
+
         def launch(a, b):
             wp.launch(_fill_rows, dim=b - a,
-                      inputs=self._arrays + [self._xs, self._rs, BAND, y0 + a, y0, out, n_gap], device=dev)
+                      inputs=self._arrays + [self._xs, self._rs, BAND, y0 + a, y0, out, n_gap, spans], device=dev)
 
-        _launch_banded(_fill_rows, y1 - y0, (y1 - y0) * W >= _BAND_MIN, dev, self.threads, launch)
+        def fill(a, b):
+            wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._arrays[14], self._xs, self._rs, self._arrays[12],
+                                                            spans, y0 + a, y0, out], device=dev)
+
+        large = (y1 - y0) * W >= _BAND_MIN
+        _launch_banded(_fill_rows, y1 - y0, large, dev, self.threads, launch)
+        _launch_banded(_fill_pixels, y1 - y0, large, dev, self.threads, fill)
         return out, n_gap
 
     def index_device(self, y0: int = 0, y1: int | None = None) -> wp.array:
