@@ -112,8 +112,23 @@ def _add_detail_list(
         out[y, x] = _saturate(out[y, x] + _detail(r, stmap[y, x], frame, mode, tex))
 
 
+_ZERO = wp.constant(wp.float32(DETAIL_ZERO))
+_GAIN = wp.constant(wp.float32(DETAIL_GAIN))
+
+
+@wp.kernel
+def _residual(texels: wp.array3d(dtype=wp.uint16), tex: wp.array2d(dtype=wp.vec3f)):
+    """10-bit texels to the residual (Y, Cb, Cr) they stand for."""
+    y, x = wp.tid()
+    tex[y, x] = wp.vec3f((wp.float32(texels[y, x, 0]) - _ZERO) / _GAIN, (wp.float32(texels[y, x, 1]) - _ZERO) / _GAIN,
+                         (wp.float32(texels[y, x, 2]) - _ZERO) / _GAIN)
+
+
 class DeviceDetail:
     """A model's detail layer uploaded to a device (once per model).
+
+    The texels go up as they are stored (16-bit words, half the bytes of the
+    float residual) and become the residual on the device.
 
     Parameters
     ----------
@@ -123,8 +138,10 @@ class DeviceDetail:
 
     def __init__(self, detail, device: str):
         self.device = device
-        res = (detail.texels.astype(np.float32) - DETAIL_ZERO) / DETAIL_GAIN
-        self.tex = wp.array(np.ascontiguousarray(res), dtype=wp.vec3f, device=device)
+        raw = wp.array(np.ascontiguousarray(detail.texels, np.uint16), dtype=wp.uint16, device=device)
+        h, w = raw.shape[:2]
+        self.tex = wp.empty((h, w), dtype=wp.vec3f, device=device)
+        wp.launch(_residual, dim=(h, w), inputs=[raw, self.tex], device=device)
         self.frame = wp.array(np.ascontiguousarray(detail.frame, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=device)
         self.mode = wp.array(np.asarray(detail.mode, np.int32), dtype=wp.int32, device=device)
 
