@@ -207,3 +207,52 @@ def test_drawn_regions_with_a_cache_draws_the_same_and_keeps_only_what_it_drew()
     for a, b in zip(redrawn, fresh):
         assert all(np.array_equal(p, q) for p, q in zip(a.outline, b.outline))
     assert len(cache) == sum(len(r.outline) for r in moved)
+
+
+def _breaks_reference(polys, width, height):
+    """The break rule read plainly: vertex ids by np.unique of the key rows, edges as a set of pairs."""
+    keys = [tuple(k) for k in curves._keys(np.concatenate(polys))]
+    ids = {k: i for i, k in enumerate(sorted(set(keys)))}
+    vid = np.array([ids[k] for k in keys])
+    neighbours = {}
+    s0 = 0
+    for p in polys:
+        n = len(p)
+        for i in range(n):
+            a, b = vid[s0 + i], vid[s0 + (i + 1) % n]
+            if a != b:
+                neighbours.setdefault(a, set()).add(b)
+                neighbours.setdefault(b, set()).add(a)
+        s0 += n
+    out, s0 = [], 0
+    cos_max = np.cos(np.radians(curves.CORNER_TURN))
+    for p in polys:
+        n = len(p)
+        flags = np.zeros(n, bool)
+        for i in range(n):
+            u, v = p[i] - p[i - 1], p[(i + 1) % n] - p[i]
+            norm = np.hypot(*u) * np.hypot(*v)
+            corner = norm == 0 or (u @ v) / norm < cos_max
+            frame = p[i, 0] <= 0 or p[i, 0] >= width or p[i, 1] <= 0 or p[i, 1] >= height
+            flags[i] = corner or frame or len(neighbours.get(vid[s0 + i], ())) != 2
+        out.append(flags if n >= 3 else np.ones(n, bool))
+        s0 += n
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_breaks_follow_their_rule(seed):
+    """Junctions (a vertex with other than two distinct neighbours among all outlines), corners and the
+    frame, on random polygons that share vertices and edges, repeat points and touch the frame."""
+    rng = np.random.default_rng(seed)
+    pool = np.round(rng.uniform(0, 20, (30, 2)) * 16) / 16
+    pool[:3, 0] = 0.0  # on the frame
+    polys = []
+    for _ in range(rng.integers(2, 7)):
+        idx = rng.choice(len(pool), rng.integers(3, 12))
+        if rng.random() < 0.3:
+            idx = np.insert(idx, 1, idx[0])  # a zero-length edge
+        polys.append(pool[idx])
+    got = curves.breaks(polys, 20, 20)
+    want = _breaks_reference(polys, 20, 20)
+    assert all(np.array_equal(g, w) for g, w in zip(got, want))

@@ -74,15 +74,21 @@ def breaks(polys: list[np.ndarray], width: float, height: float) -> list[np.ndar
     if not sum(sizes):
         return [np.ones(0, bool) for _ in polys]
     k = _keys(np.concatenate(polys))
-    _, vid = np.unique(k, axis=0, return_inverse=True)
-    vid = vid.ravel()
+    # one id per distinct vertex (a sort of the key pairs; np.unique(axis=0) is many times slower)
+    order = np.lexsort((k[:, 1], k[:, 0]))
+    ks = k[order]
+    new = np.ones(len(ks), bool)
+    new[1:] = (ks[1:] != ks[:-1]).any(axis=1)
+    vid = np.empty(len(ks), np.int64)
+    vid[order] = np.cumsum(new) - 1
+    nv = int(new.sum())
     # every undirected edge once (zero-length ones left out), then each vertex's distinct neighbours
     start = np.cumsum([0] + sizes[:-1])
     nxt = np.concatenate([np.roll(np.arange(n), -1) + s0 for n, s0 in zip(sizes, start)])
     a, b = vid, vid[nxt]
     real = a != b
-    edges = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)])[real], axis=0)
-    degree = np.bincount(edges.ravel(), minlength=int(vid.max()) + 1)
+    edges = np.unique(np.minimum(a, b)[real] * nv + np.maximum(a, b)[real])
+    degree = np.bincount(np.concatenate([edges // nv, edges % nv]), minlength=nv)
     out = []
     for p, s0 in zip(polys, start):
         n = len(p)
