@@ -80,7 +80,9 @@ def test_magnify_raster_refines_and_reports_progress(small_rgb):
     # both average back to the input; the refinement does not lose that
     for pic in (plain, sharp):
         assert metrics.psnr(small_rgb, _area(pic, (h, w))) > 35
-    # same size as the input: nothing to sharpen, the model's render is the picture
+    # same size as the input, or smaller: nothing to sharpen, the model's render is the picture
     _, same = magnify_raster(small_rgb, (w, h), iterations=1, refine_iterations=5,
                              progress=lambda done, total: calls.append((done, total)))
     assert calls[-1] == (1, 1)
+    _, less = magnify_raster(small_rgb, (w // 2, h // 2 + 1), iterations=1)
+    assert less.shape == (h // 2 + 1, w // 2, 3)

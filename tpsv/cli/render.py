@@ -23,7 +23,7 @@ from ..encode.alpha import has_transparency
 from ..errors import TpsvError
 from ..image import OutputFormat, encode_image, read_image, read_labels
 from ..png import png_chunks
-from ..rendering.magnify import magnify_raster
+from ..rendering.magnify import magnify_raster, refine_steps
 from ..rendering.raster import (MAX_ARRAY_PIXELS, TILE_PIXELS, output_size, render as render_raster, render_bands,
                                 render_png)
 
@@ -185,7 +185,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
         # the renderer's size limits, checked before the fit rather than at its final render
         output_size(SimpleNamespace(width=w, height=h), width=size[0], height=size[1])
         fmt.check_size(*size)
-        with progress_bar(ctx, fit_iterations + refine_iterations, "magnify") as bar:
+        with progress_bar(ctx, fit_iterations + refine_steps((w, h), size, refine_iterations), "magnify") as bar:
             model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device,
                                         progress=advance(bar), refine_iterations=refine_iterations)
         seconds = time.perf_counter() - t0

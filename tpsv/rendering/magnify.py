@@ -115,6 +115,13 @@ def back_project(
     return model
 
 
+def refine_steps(input_size: tuple[int, int], size: tuple[int, int], refine_iterations: int) -> int:
+    """Refinement steps :func:`magnify_raster` runs: ``refine_iterations`` when ``size`` is larger than
+    ``input_size`` (both (width, height)) and not smaller in either direction, else 0."""
+    grows = size[0] >= input_size[0] and size[1] >= input_size[1] and tuple(size) != tuple(input_size)
+    return int(refine_iterations) if grows else 0
+
+
 def magnify_raster(
     rgb: np.ndarray,
     size: tuple[int, int],
@@ -161,13 +168,14 @@ def magnify_raster(
         raise TpsvError(f"magnifying a raster to {size[0]}x{size[1]} px is beyond tpsv's limit "
                         f"({MAX_ARRAY_PIXELS:,} px); vectorize it and render the .tpsv instead")
     h, w = rgb.shape[:2]
-    steps = refine_iterations if size[0] >= w and size[1] >= h and size != (w, h) else 0
+    steps = refine_steps((w, h), size, refine_iterations)
     total = iterations + steps
     model, pixel = dense_model(rgb, labels)
     model = back_project(model, pixel, rgb, size, iterations=iterations, device=device,
                          progress=None if progress is None else lambda done, _: progress(done, total))
     big = render(model, width=size[0], height=size[1], device=device)
-    big = refine_magnified(big, rgb, steps,
-                           progress=None if progress is None else lambda done, _: progress(iterations + done, total))
+    if steps:
+        big = refine_magnified(big, rgb, steps,
+                               progress=None if progress is None else lambda done, _: progress(iterations + done, total))
     return model, big
 
