@@ -137,9 +137,22 @@ def test_device_table_reports_end_to_end_per_size():
         st = r["stages_ms"]
         assert r["end_to_end_ms"] == pytest.approx(st["total"] - st["download"])
         assert 0 < r["device_ms"] < r["end_to_end_ms"] and r["max_abs_diff_vs_cpu"] == 0.0
-        assert r["prepared_ms"] > 0
+        assert r["prepared_ms"] > 0 and r["new_size_ms"] > 0
     text = device_table_text([{"name": "blobs", "device_check": d}], "cpu")
-    assert "e2e" in text and "96x72" in text
+    assert "e2e" in text and "96x72" in text and "zoom" in text
+
+
+def test_edit_table_at_a_window_size():
+    from tests.test_tiles import traced_model
+    from tpsv.bench.tables import edit_table, edit_table_text
+
+    m = traced_model()
+    at = edit_table(m, "cpu", (80, 60))
+    assert set(at) == {"recolor_point", "recolor_region", "deform_translate", "deform_scale"}
+    for e in at.values():
+        assert e["pixels"] <= 80 * 60 and e["seconds"]["total"] > 0
+    text = "\n".join(edit_table_text([{"name": "blobs", "edits": at, "edits_window": at}], "cpu"))
+    assert "at the model's size" in text and "at 1920x1080" in text and "deform_scale" in text
 
 
 def test_scaling_table_measures_each_size_in_a_child(small_rgb):

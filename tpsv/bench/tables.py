@@ -166,7 +166,9 @@ def device_table(model: Model, device: str, sizes=DEVICE_SIZES, repeat: int = 10
     ``device_ms`` the device stages alone; ``prepared_ms`` a frame by a
     :class:`~tpsv.rendering.raster.Renderer` into device memory once the
     model (kernels) and the size (outlines, border pieces) are prepared:
-    what a viewer pays per frame.
+    what a viewer pays per frame; ``new_size_ms`` a frame of that renderer at
+    a size it has not prepared (2, 4, ... px smaller each time: a viewer
+    zooming), best of ``min(repeat, 5)``.
     """
     import time
 
@@ -184,6 +186,12 @@ def device_table(model: Model, device: str, sizes=DEVICE_SIZES, repeat: int = 10
             prepared.render(size[0], size[1], keep_on_device=True)
             warp().synchronize_device(prepared.device)
             best = min(best, time.perf_counter() - t0)
+        zoom = np.inf
+        for i in range(min(max(1, repeat), 5)):
+            t0 = time.perf_counter()
+            prepared.render(max(1, size[0] - 2 * (i + 1)), max(1, size[1] - 2 * (i + 1)), keep_on_device=True)
+            warp().synchronize_device(prepared.device)
+            zoom = min(zoom, time.perf_counter() - t0)
         rows.append({
             "size": list(size),
             "stages_ms": {k: v * 1e3 for k, v in t.items()},
@@ -191,15 +199,21 @@ def device_table(model: Model, device: str, sizes=DEVICE_SIZES, repeat: int = 10
                           + t.get("detail", 0.0)) * 1e3,
             "end_to_end_ms": (t["total"] - t["download"]) * 1e3,
             "prepared_ms": best * 1e3,
+            "new_size_ms": zoom * 1e3,
             "max_abs_diff_vs_cpu": float(np.abs(img - ref).max()),
         })
         del img, ref
     return {"device": device, "sizes": rows}
 
 
-def edit_table(model: Model, device: str) -> dict:
+#: Output size of the second edit table on a GPU (a viewer's window).
+EDIT_SIZE = (1920, 1080)
+
+
+def edit_table(model: Model, device: str, size: tuple[int, int] | None = None) -> dict:
     """Rebuild + render seconds of typical edits through :class:`tpsv.rendering.live.LiveImage`
-    (only kernels whose features changed are solved again), best of 3."""
+    (only kernels whose features changed are solved again), best of 3, at ``size``
+    (width, height; default the model's)."""
     from ..edit.deform import affine
     from ..rendering.live import LiveImage
     from ..edit.recolor import recolor
@@ -220,7 +234,7 @@ def edit_table(model: Model, device: str) -> dict:
         edited = edit(model)
         best = None
         for _ in range(3):
-            live = LiveImage(model, device=device)
+            live = LiveImage(model, *(size or (None, None)), device=device)
             stats = live.update(edited)
             if best is None or stats.seconds["total"] < best["seconds"]["total"]:
                 best = stats.as_dict()
@@ -392,6 +406,7 @@ def bench_image(
     tick("magnify")
     dev = device_table(model, device) if device != "cpu" else None
     edits = edit_table(model, device)
+    edits_window = edit_table(model, device, EDIT_SIZE) if device != "cpu" else None
     tick("edits")
     return {
         "name": name,
@@ -415,6 +430,7 @@ def bench_image(
         "magnification": mag,
         "device_check": dev,
         "edits": edits,
+        "edits_window": edits_window,
     }
 
 
@@ -429,6 +445,7 @@ def bench_model(name: str, model: Model, *, device: str = "cpu") -> dict:
         "timing": timing_table(model, device),
         "device_check": device_table(model, device) if device != "cpu" else None,
         "edits": edit_table(model, device),
+        "edits_window": edit_table(model, device, EDIT_SIZE) if device != "cpu" else None,
     }
 
 
@@ -454,7 +471,7 @@ def device_table_text(results: list[dict], device: str) -> str:
     out = []
     out.append(f"Renders on {device}: ms per stage (best of 10), end to end, max |{device} - cpu|")
     out.append(f"{'image':<12}{'size':>10}{'patchmap':>9}{'solve':>7}{'raster':>7}{'borders':>8}{'detail':>7}"
-               f"{'device':>7}{'regions*':>9}{'edges*':>8}{'upload*':>8}{'group*':>7}{'e2e':>8}{'prep.':>7}"
+               f"{'device':>7}{'regions*':>9}{'edges*':>8}{'upload*':>8}{'group*':>7}{'e2e':>8}{'prep.':>7}{'zoom':>7}"
                f"{'max diff':>10}")
     for r in results:
         for d in r["device_check"]["sizes"]:
@@ -464,13 +481,32 @@ def device_table_text(results: list[dict], device: str) -> str:
                        f"{st['rasterise']:>7.2f}{st.get('borders', 0.0):>8.2f}{st.get('detail', 0.0):>7.2f}"
                        f"{d['device_ms']:>7.2f}{st['regions']:>9.1f}{st.get('edges', 0.0):>8.1f}{up:>8.1f}"
                        f"{st['group']:>7.1f}{d['end_to_end_ms']:>8.1f}{d['prepared_ms']:>7.1f}"
+                       f"{d['new_size_ms']:>7.1f}"
                        f"{d['max_abs_diff_vs_cpu']:>10.2e}")
     out.append("  * host stages and host-to-device copies (outline rasterisation, border pixels and their")
     out.append("    coverage, region map and kernel upload, kernel grouping); 'device' is the sum of the")
     out.append("    device stages (inverse patch map, build/solve, rasterise, border mix, detail); 'e2e' every")
     out.append("    stage from a loaded model to the image in device memory (the download not included);")
-    out.append("    'prep.' a frame by a Renderer once the model's kernels and the size's outlines are prepared")
+    out.append("    'prep.' a frame by a Renderer once the model's kernels and the size's outlines are prepared;")
+    out.append("    'zoom' a frame of that Renderer at a size it has not prepared")
     return "\n".join(out)
+
+
+def edit_table_text(results: list[dict], device: str) -> list[str]:
+    """The printed edit tables (lines, each table after a blank line): at the model's size and,
+    on a GPU, at :data:`EDIT_SIZE`."""
+    out = []
+    for key, where in (("edits", "at the model's size"), ("edits_window", "at {}x{}".format(*EDIT_SIZE))):
+        eds = [r for r in results if r.get(key)]
+        if eds:
+            out.append("")
+            out.append(f"Edits on {device} {where}: live rebuild + render, ms (kernels solved / total)")
+            out.append(f"{'image':<12}" + "".join(f"{n:>22}" for n in eds[0][key]))
+            for r in eds:
+                cells = [f"{e['seconds']['total'] * 1e3:.1f} ({e['solved']}/{e['kernels']})"
+                         for e in r[key].values()]
+                out.append(f"{r['name']:<12}" + "".join(f"{c:>22}" for c in cells))
+    return out
 
 
 def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
@@ -520,15 +556,7 @@ def tables(results: list[dict], device: str, edges: dict | None = None) -> str:
     if devs:
         out.append("")
         out.append(device_table_text(devs, device))
-    eds = [r for r in results if r.get("edits")]
-    if eds:
-        out.append("")
-        out.append(f"Edits on {device}: live rebuild + render, ms (kernels solved / total)")
-        names = list(eds[0]["edits"])
-        out.append(f"{'image':<12}" + "".join(f"{n:>22}" for n in names))
-        for r in eds:
-            cells = [f"{e['seconds']['total'] * 1e3:.1f} ({e['solved']}/{e['kernels']})" for e in r["edits"].values()]
-            out.append(f"{r['name']:<12}" + "".join(f"{c:>22}" for c in cells))
+    out.extend(edit_table_text(results, device))
     out.append("")
     out.append("CPU seconds (this machine)")
     out.append(f"{'image':<12}{'size':>10}{'features':>10}{'vectorize':>11}{'render':>9}")

@@ -107,8 +107,10 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     --out's plots draw these curves too), the 4x
     magnification comparison against bicubic and Lanczos (PSNR, SSIM, GMSD),
     the edge table (synthetic shapes rendered at 8x against the analytic
-    picture, PSNR and GMSD next to bicubic and Lanczos; once per run) and CPU
-    seconds.
+    picture, PSNR and GMSD next to bicubic and Lanczos; once per run), the
+    edit latencies (recolor and deform through a live image, at the model's
+    size and, with --device cuda, at 1920x1080, next to the device table of
+    whole renders, prepared frames and new sizes) and CPU seconds.
     """
     inputs = [(name, path, lab, is_tpsv(str(path))) for name, path, lab in _inputs(images)]
     with claim_outputs([p for _, path, lab, _ in inputs for p in (path, lab)],
