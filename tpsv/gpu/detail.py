@@ -1,9 +1,10 @@
 """The detail layer on a Warp device: texture residual added to rendered pixels.
 
 One thread per output pixel: its region's rest frame maps the pixel's
-``(S, T)`` to a texture position, the texture is sampled there with
-Catmull-Rom weights (interpolating: at scale 1 a pixel centre lands on its
-texel and gets it exactly; magnified, the texture is smooth, C1), and the
+``(S, T)`` to a texture position, the texture is sampled there with the
+weights of the Keys cubic, ``a = -0.75`` (interpolating: at scale 1 a pixel
+centre lands on its texel and gets it exactly; magnified, the texture is
+smooth, C1, and a little sharper than with Catmull-Rom's ``a = -0.5``), and the
 residual (stored as Y, Cb, Cr) is added to the sRGB colour, clamped to
 ``[0, 1]``. A region in luma mode adds only the residual's Y, the same to
 all three channels.
@@ -24,29 +25,29 @@ _FROM_YCC = wp.constant(wp.mat33f(*np.linalg.inv(DETAIL_YCC).astype(np.float32).
 
 
 @wp.func
-def _cr(t: float):
-    """Catmull-Rom weights of the four texels around a position ``t`` past the second."""
+def _keys(t: float):
+    """Keys cubic weights (``a = -0.75``) of the four texels around a position ``t`` past the second."""
     t2 = t * t
     t3 = t2 * t
     return wp.vec4f(
-        -0.5 * t3 + t2 - 0.5 * t,
-        1.5 * t3 - 2.5 * t2 + 1.0,
-        -1.5 * t3 + 2.0 * t2 + 0.5 * t,
-        0.5 * t3 - 0.5 * t2,
+        -0.75 * t3 + 1.5 * t2 - 0.75 * t,
+        1.25 * t3 - 2.25 * t2 + 1.0,
+        -1.25 * t3 + 1.5 * t2 + 0.75 * t,
+        0.75 * t3 - 0.75 * t2,
     )
 
 
 @wp.func
 def _sample(tex: wp.array2d(dtype=wp.vec3f), x: float, y: float):
-    """Catmull-Rom sample at texture position (x, y) (texel centres at half-integers), edges clamped."""
+    """Cubic sample at texture position (x, y) (texel centres at half-integers), edges clamped."""
     th = tex.shape[0]
     tw = tex.shape[1]
     fx = x - 0.5
     fy = y - 0.5
     ix = int(wp.floor(fx))
     iy = int(wp.floor(fy))
-    wx = _cr(fx - float(ix))
-    wy = _cr(fy - float(iy))
+    wx = _keys(fx - float(ix))
+    wy = _keys(fy - float(iy))
     acc = wp.vec3f(0.0, 0.0, 0.0)
     for j in range(4):
         yy = wp.clamp(iy - 1 + j, 0, th - 1)
