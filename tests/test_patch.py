@@ -319,3 +319,24 @@ def test_min_jacobian_matches_pointwise_sampling():
         low = min(hp._det(hp.jacobian(p, S, T)).min(),
                   hp._det(hp.jacobian(p, np.clip(S - 1e-9, 0, M - 1), np.clip(T - 1e-9, 0, N - 1))).min())
         assert hp.min_jacobian(p) == pytest.approx(low, rel=1e-6, abs=1e-9)
+
+
+def test_coefficients_reproduce_the_hermite_patch_at_cell_corners():
+    """The power-basis coefficients (matrix products B G B^T) give the control points and derivatives
+    back at every cell corner, for a non-affine patch."""
+    from tpsv.geometry.patch import coefficients
+
+    rng = np.random.default_rng(2)
+    ctrl = rng.normal(size=(4, 3, 4, 2)) * 7.0
+    K = coefficients(Patch(ctrl))
+    assert K.shape == (3, 2, 4, 4, 2)
+    for i in range(3):
+        for j in range(2):
+            for du, dv, ci, cj in ((0, 0, i, j), (1, 0, i + 1, j), (0, 1, i, j + 1), (1, 1, i + 1, j + 1)):
+                u, v = float(du), float(dv)
+                pu, pv = u ** np.arange(4), v ** np.arange(4)
+                value = np.einsum("p,pqk,q->k", pu, K[i, j], pv)
+                d_u = np.einsum("p,pqk,q->k", np.arange(4) * np.r_[0, pu[:3]], K[i, j], pv)
+                d_v = np.einsum("p,pqk,q->k", pu, K[i, j], np.arange(4) * np.r_[0, pv[:3]])
+                assert np.allclose(value, ctrl[ci, cj, 0]) and np.allclose(d_u, ctrl[ci, cj, 1])
+                assert np.allclose(d_v, ctrl[ci, cj, 2])

@@ -74,7 +74,9 @@ def _geometry(ctrl: np.ndarray):
 def coefficients(patch: Patch) -> np.ndarray:
     """Power-basis coefficients K (M-1, N-1, 4, 4, 2): ``M(u, v) = sum K[p, q] u^p v^q`` per cell."""
     G = _geometry(np.asarray(patch.ctrl, np.float64))
-    return np.einsum("pa,ijabk,qb->ijpqk", _B, G, _B)
+    # B G B^T per cell and coordinate, as matrix products (an unoptimised einsum took 5x as long;
+    # the same numbers for the affine patches of a fresh model, within 1e-15 relative otherwise)
+    return np.moveaxis(_B @ np.moveaxis(G, -1, 2) @ _B.T, 2, -1)
 
 
 def _horner(K, u, v):
