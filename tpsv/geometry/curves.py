@@ -39,6 +39,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from .. import memo
+
 #: A vertex turning by more than this (degrees) between its two edges is a corner.
 CORNER_TURN = 35.0
 #: How far (output pixels) a drawn curve's pieces may pass from the curve. The pieces of a
@@ -149,17 +151,12 @@ def _hermite(p: np.ndarray, brk: np.ndarray, prev_i: np.ndarray, next_i: np.ndar
     return m0, m1
 
 
-def _pieces(p: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.ndarray:
-    """Pieces per segment that keep a polygon within ``tol`` of each segment's curve.
+def _pieces(p: np.ndarray, q: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.ndarray:
+    """Pieces per segment ``p -> q`` that keep a polygon within ``tol`` of each segment's curve.
 
     Wang's bound for a cubic Bezier ``b0..b3`` cut into ``n`` equal parameter
     steps: the chords stay within ``3/4 max|b_i - 2 b_(i+1) + b_(i+2)| / n^2`` of the curve.
     """
-    return _pieces_to(p, np.roll(p, -1, axis=0), m0, m1, tol)
-
-
-def _pieces_to(p: np.ndarray, q: np.ndarray, m0: np.ndarray, m1: np.ndarray, tol: float) -> np.ndarray:
-    """:func:`_pieces` of the segments ``p -> q``."""
     b1, b2 = p + m0 / 3.0, q - m1 / 3.0
     d = np.maximum(np.hypot(*(p - 2 * b1 + b2).T), np.hypot(*(b1 - 2 * b2 + q).T))
     return np.maximum(1, np.ceil(np.sqrt(0.75 * d / tol))).astype(np.int64)
@@ -171,21 +168,13 @@ def densify(p: np.ndarray, brk: np.ndarray, tol: float) -> np.ndarray:
     Every vertex of ``p`` is a vertex of the result; a straight segment
     (between two breaks) is not cut.
     """
-    p = np.asarray(p, np.float64)
-    n = len(p)
-    if n < 3:
-        return p.copy()
-    m0, m1 = hermite(p, brk)
-    nxt = np.roll(p, -1, axis=0)
-    count = _pieces(p, m0, m1, tol)
-    seg = np.repeat(np.arange(n), count)
-    s = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)) / count[seg]
-    s = s[:, None]
-    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
-    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
-    out = h00 * p[seg] + h10 * m0[seg] + h01 * nxt[seg] + h11 * m1[seg]
-    out[s[:, 0] == 0] = p[seg[s[:, 0] == 0]]  # vertices exactly as stored
-    return out
+    return _densify_all([np.asarray(p, np.float64).reshape(-1, 2)], [brk], tol, max_pieces=None)[0]
+
+
+def _basis(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cubic Hermite basis ``h00, h10, h01, h11`` at parameters ``s``."""
+    s2, s3 = s**2, s**3
+    return 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
 
 
 #: Pieces per segment where :func:`simplify_open` measures a curve.
@@ -264,9 +253,7 @@ def simplify_open(p: np.ndarray, tol: np.ndarray, start: np.ndarray) -> np.ndarr
     keep = np.zeros(len(p), bool)
     keep[np.asarray(start, np.int64)] = True
     keep[0] = keep[-1] = True
-    s = (np.arange(_MEASURE + 1) / _MEASURE)[:, None]
-    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
-    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    h00, h10, h01, h11 = _basis((np.arange(_MEASURE + 1) / _MEASURE)[:, None])
     # A segment's curve depends on its two vertices and their kept neighbours only: one found
     # within tolerance is not measured again while those four stay (the result is the same).
     settled = set()
@@ -329,20 +316,16 @@ def drawn_regions(regions: list, width: float, height: float, tol: float, brk: l
         dense = iter(_densify_all(polys, brk, tol))
     else:
         keys = [(float(tol), p.tobytes(), np.asarray(b, bool).tobytes()) for p, b in zip(polys, brk)]
-        new = {k: i for i, k in enumerate(keys) if k not in cache}
-        drawn = _densify_all([polys[i] for i in new.values()], [brk[i] for i in new.values()], tol)
-        known = {k: cache[k] for k in keys if k not in new}
-        cache.clear()
-        cache.update(known)
-        cache.update(zip(new, drawn))
-        dense = iter([cache[k] for k in keys])
+        dense = iter(memo.refresh(cache, keys, lambda idx: _densify_all([polys[i] for i in idx],
+                                                                        [brk[i] for i in idx], tol)))
     return [replace(r, outline=[next(dense) for _ in r.outline]) for r in regions]
 
 
-def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float) -> list[np.ndarray]:
-    """:func:`densify` of every polygon, in one pass over all their vertices (the same numbers:
-    each vertex sees its own polygon's neighbours), with the tolerance made coarser where the
-    pieces would pass :data:`MAX_DRAWN`."""
+def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float,
+                 max_pieces: int | None = MAX_DRAWN) -> list[np.ndarray]:
+    """:func:`densify` of every polygon, in one pass over all their vertices (each vertex sees its
+    own polygon's neighbours), with the tolerance made coarser where the pieces would pass
+    ``max_pieces`` (None: never)."""
     curved = [len(p) >= 3 for p in polys]
     if not any(curved):
         return [p.copy() for p in polys]
@@ -357,17 +340,15 @@ def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float) -> 
     next_i = start + (local + 1) % size
     m0, m1 = _hermite(p, b, prev_i, next_i)
     nxt = p[next_i]
-    count = _pieces_to(p, nxt, m0, m1, tol)
+    count = _pieces(p, nxt, m0, m1, tol)
     total = int(count.sum())
     # pieces go as 1 / sqrt(tol): where they would be too many, a coarser tolerance
-    if total > MAX_DRAWN:
-        count = _pieces_to(p, nxt, m0, m1, tol * (total / MAX_DRAWN) ** 2)
+    if max_pieces is not None and total > max_pieces:
+        count = _pieces(p, nxt, m0, m1, tol * (total / max_pieces) ** 2)
     seg = np.repeat(np.arange(p.shape[0]), count)
     s = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)) / count[seg]
     s = s[:, None]
-    s2, s3 = s**2, s**3
-    h00, h10 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s
-    h01, h11 = -2 * s3 + 3 * s2, s3 - s2
+    h00, h10, h01, h11 = _basis(s)
     out = h00 * p[seg] + h10 * m0[seg] + h01 * nxt[seg] + h11 * m1[seg]
     out[s[:, 0] == 0] = p[seg[s[:, 0] == 0]]  # vertices exactly as stored
     # back into polygons: a polygon's pieces follow its vertices

@@ -50,20 +50,14 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
         The label map has no region.
     """
     h, w = labels.shape
-    comp = segment.split_connected(labels, min_size=1)
-    n = int(comp.max()) + 1
+    comp, slices, present = _components(labels)
     regions: list[Region] = []
-    slices = ndimage.find_objects(comp + 1, max_label=n)
-    present = [i for i in range(n) if slices[i] is not None]
     fitted = [None] * len(present)
     if rgb is not None:
         reading = subpixel.BorderReading(comp, rgb)
         split = subpixel.split_pinched(reading, comp, present, [slices[i] for i in present])
         if split is not None:
-            comp = segment.split_connected(split, min_size=1)
-            n = int(comp.max()) + 1
-            slices = ndimage.find_objects(comp + 1, max_label=n)
-            present = [i for i in range(n) if slices[i] is not None]
+            comp, slices, present = _components(split)
             reading = subpixel.BorderReading(comp, rgb)
         # all at once: a border between two regions is simplified once, for both
         fitted = subpixel.fitted_outlines(reading, comp, present, [slices[i] for i in present])
@@ -79,6 +73,15 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
     drawn = regions if rgb is None else curves.drawn_regions(regions, w, h, curves.DRAWN_TOL)
     index = outline.rasterize_regions(drawn, w, h, src_size=(w, h))
     return regions, index
+
+
+def _components(labels: np.ndarray):
+    """Connected components of a label map (``comp``, ``0 .. n-1``), the bounding box of each
+    (``find_objects`` slices, None for an absent value), and the values present."""
+    comp = segment.split_connected(labels, min_size=1)
+    n = int(comp.max()) + 1
+    slices = ndimage.find_objects(comp + 1, max_label=n)
+    return comp, slices, [i for i in range(n) if slices[i] is not None]
 
 
 def _by_region(region: np.ndarray, n: int):

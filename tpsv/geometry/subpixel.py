@@ -398,15 +398,6 @@ class BorderReading:
         return out
 
 
-def _field_window(reading: BorderReading, comp: np.ndarray, region: int, box: tuple[slice, slice],
-                  margin: int) -> tuple[np.ndarray, tuple[slice, slice]]:
-    """``region``'s field over its box grown by ``margin`` px (clipped to the image), and that window."""
-    H, W = comp.shape
-    window = (slice(max(box[0].start - margin, 0), min(box[0].stop + margin, H)),
-              slice(max(box[1].start - margin, 0), min(box[1].stop + margin, W)))
-    return reading.field(comp, region, window), window
-
-
 def split_pinched(reading: BorderReading, comp: np.ndarray, regions: list[int],
                   boxes: list[tuple[slice, slice]]) -> np.ndarray | None:
     """Split the regions whose field falls apart into several parts.
@@ -433,10 +424,14 @@ def split_pinched(reading: BorderReading, comp: np.ndarray, regions: list[int],
         ``comp`` with the new regions numbered from ``comp.max() + 1``, in the
         order of ``regions``; None when no region falls apart.
     """
+    H, W = comp.shape
     out = None
     nxt = int(comp.max()) + 1
     for region, box in zip(regions, boxes):
-        m, window = _field_window(reading, comp, region, box, 1)
+        # the box and a pixel around it: a neck's parts are cut by the region's own field
+        window = (slice(max(box[0].start - 1, 0), min(box[0].stop + 1, H)),
+                  slice(max(box[1].start - 1, 0), min(box[1].stop + 1, W)))
+        m = reading.field(comp, region, window)
         own = comp[window] == region
         parts, count = ndimage.label(m > 0.5)
         if count < 2:

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .. import memo
 from ..geometry.patch import affine_frame, coefficients
 from . import warp as _warp
 
@@ -303,16 +304,11 @@ class PatchSet:
         reg_i = np.zeros((max(R, 1), 4), np.int32)
         reg_f = np.zeros((max(R, 1), 7), np.float32)
         po = co = 0
-        flat = [_flatten(p) if cache is None else None for p in patches]
-        if cache is not None:
+        if cache is None:
+            flat = [_flatten(p) for p in patches]
+        else:
             keys = [np.asarray(p.ctrl, np.float64).tobytes() for p in patches]
-            kept = {k: cache[k] for k in keys if k in cache}
-            cache.clear()
-            cache.update(kept)
-            for r, (k, patch) in enumerate(zip(keys, patches)):
-                if k not in cache:
-                    cache[k] = _flatten(patch)
-                flat[r] = cache[k]
+            flat = memo.refresh(cache, keys, lambda idx: [_flatten(patches[i]) for i in idx])
         for r, (patch, (P, K, f)) in enumerate(zip(patches, flat)):
             M, N = patch.shape
             reg_i[r] = (M, N, po, co)

@@ -365,10 +365,12 @@ class DeviceOutlines:
         dev = self.device
         f64 = lambda a: wp.array(np.ascontiguousarray(a, np.float64), dtype=wp.float64, device=dev)  # noqa: E731
         i32 = lambda a: wp.array(np.ascontiguousarray(a, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
+        self._lut = i32(self._lut_host)
+        self._rowstart = wp.array(rowstart, dtype=wp.int64, device=dev)
         self._arrays = [
             f64(cov._xa), f64(cov._ya), f64(cov._xb), f64(cov._yb), i32(cov._reg), i32(g0), i32(g1),
-            i32(bstart), i32(e[order_e]), i32(cov._x0), i32(cov._y0), i32(cov._w), i32(self._lut_host), i32(rank),
-            wp.array(rowstart, dtype=wp.int64, device=dev),
+            i32(bstart), i32(e[order_e]), i32(cov._x0), i32(cov._y0), i32(cov._w), self._lut, i32(rank),
+            self._rowstart,
         ]
         n_cross = int(rowstart[-1])
         self._xs = wp.empty(max(n_cross, 1), dtype=wp.float64, device=dev)
@@ -400,7 +402,7 @@ class DeviceOutlines:
                       inputs=self._arrays + [self._xs, self._rs, BAND, y0 + a, y0, out, n_gap, spans], device=dev)
 
         def fill(a, b):
-            wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._arrays[14], self._xs, self._rs, self._arrays[12],
+            wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._rowstart, self._xs, self._rs, self._lut,
                                                             spans, y0 + a, y0, out], device=dev)
 
         large = (y1 - y0) * W >= _BAND_MIN
