@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 
@@ -327,3 +330,17 @@ def test_a_renderer_puts_the_patches_on_the_device_once(smooth_model, monkeypatc
     assert len(built) == 1
     render.render(smooth_model, scale=2)
     assert len(built) == 2
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="fork only")
+def test_a_forked_child_renders(smooth_model):
+    """CPU launches share a pool of host threads; a forked child (the fuzzing runner, a
+    batch worker) has none of its threads and must make its own instead of waiting forever."""
+    before = render.render(smooth_model, scale=2, threads=2)  # large enough to launch in bands
+    pid = os.fork()
+    if pid == 0:  # the child: killed by the alarm if it hangs
+        signal.alarm(60)
+        same = np.array_equal(render.render(smooth_model, scale=2, threads=2), before)
+        os._exit(0 if same else 3)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0

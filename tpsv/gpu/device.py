@@ -210,3 +210,9 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     """One pool of host threads per thread count, kept for the process: starting
     the threads anew for every launch cost about 8 ms of a 512x512 CPU render."""
     return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="tpsv-launch")
+
+
+# a forked child has the parent's pool objects but none of their threads: it makes its own
+# (as tpsv.encode.fit's pool does)
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_pool.cache_clear)
