@@ -21,7 +21,8 @@ from tpsv.edit.crossmap import crossmap
 from tpsv.edit.deform import move_points
 from tpsv.edit.recolor import recolor_selected
 from tpsv.edit.stylize import abstract
-from tpsv.encode.rate import encode_quality
+from tpsv.encode import rate
+from tpsv.encode.rate import encode_quality, smooth_fills
 from tpsv.errors import TpsvError, TpsvFormatError
 from tpsv.image import to_uint8
 from tpsv.model import DETAIL_FULL, DETAIL_LUMA, DETAIL_OFF
@@ -246,6 +247,47 @@ def test_magnified_detail_is_smooth(textured):
     big = render(model, scale=4)
     flat = np.abs(np.diff(big, axis=1)).max(axis=2) < 1e-7
     assert flat.mean() < 0.2
+
+
+def _ramp(n: int = 48) -> np.ndarray:
+    """A purple-to-green ramp, straight in sRGB (so curved in Lab)."""
+    t = np.linspace(0.0, 1.0, n, dtype=np.float32)[None, :, None] * np.ones((n, 1, 1), np.float32)
+    return (1 - t) * np.array([0.7, 0.2, 0.8], np.float32) + t * np.array([0.1, 0.75, 0.1], np.float32)
+
+
+def test_smooth_fills_are_told_from_texture():
+    ramp = _ramp()
+    index = np.zeros(ramp.shape[:2], np.int32)
+    flat = np.broadcast_to(ramp.mean((0, 1)), ramp.shape)
+    rng = np.random.default_rng(0)
+    noise = flat + rng.normal(0.0, 0.1, ramp.shape).astype(np.float32)
+    assert smooth_fills(ramp, flat, index).tolist() == [True]
+    assert smooth_fills(noise, flat, index).tolist() == [False]  # texture: the detail layer's
+    assert smooth_fills(ramp, ramp + 1.0 / 255, index).tolist() == [False]  # too faint to matter
+    assert smooth_fills(ramp, flat, index, [True]).tolist() == [False]  # nobody sees it
+    # regions are judged apart: a ramp above noise
+    two = np.where(np.arange(48)[:, None, None] < 24, ramp, noise)
+    index[24:] = 1
+    assert smooth_fills(two, flat, index).tolist() == [True, False]
+
+
+def test_a_gradient_fill_gets_a_finer_base_and_comes_back_smooth(monkeypatch):
+    """A ramp the coarsest lattice cannot follow is carried by the vector base, not by the texture:
+    more base features, a closer base, and at 4x no blotches (the render stays monotonic along
+    the ramp)."""
+    rgb = _ramp(64)
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    res = encode_quality(rgb, labels)
+    with monkeypatch.context() as m:
+        m.setattr(rate, "SMOOTH_FILL_MIN", np.inf)  # as before smooth fills were found
+        coarse = encode_quality(rgb, labels)
+    assert len(res.model.features) > len(coarse.model.features)
+    base = lambda r: render(dataclasses.replace(codec.decode(r.data), detail=None))  # noqa: E731
+    assert psnr(rgb, base(res)) > psnr(rgb, base(coarse)) + 2.0
+    assert res.psnr > coarse.psnr + 1.0 and len(res.data) <= len(coarse.data) * 1.05
+    big = render(codec.decode(res.data), scale=4)
+    green = big[8:-8, :, 1].mean(axis=0)  # rises along the ramp
+    assert (np.diff(green[8:-8]) > -0.5 / 255).all()
 
 
 # ------------------------------------------------------------------ edits

@@ -881,9 +881,13 @@ class LatticeGradation:
         k = cells - lat["off"][r]
         return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
-    def region_spacing(self, t_super: float) -> np.ndarray:
-        """Index into ``spacings`` per region for ``t_super``."""
+    def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None) -> np.ndarray:
+        """Index into ``spacings`` per region for ``t_super``, no coarser than ``max_spacing``
+        (pixels per region, optional) where that is given."""
         ok = self.region_rms <= float(t_super)  # (n_d, R), spacings ascending
+        if max_spacing is not None:
+            ok &= np.asarray(self.spacings)[:, None] <= np.asarray(max_spacing, np.float64)[None, :]
+            ok[0] = ok[0] | ~ok.any(axis=0)  # a cap below the finest spacing gets the finest
         last = len(self.spacings) - 1 - np.argmax(ok[::-1], axis=0)
         return np.where(ok.any(axis=0), last, 0)
 
@@ -896,9 +900,11 @@ class LatticeGradation:
         pos = np.minimum(np.searchsorted(self.pix, pixels), self.pix.size - 1)
         return pos[self.pix[pos] == pixels]
 
-    def features(self, t_super: float, edge_pixels: np.ndarray | None = None) -> FeatureSet:
-        """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided."""
-        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels))
+    def features(self, t_super: float, edge_pixels: np.ndarray | None = None,
+                 max_spacing: np.ndarray | None = None) -> FeatureSet:
+        """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided;
+        each region's spacing at most its ``max_spacing`` (pixels, optional)."""
+        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels), max_spacing)
         xy = to_pixel_space(self.patches, reg, st)  # for de-duplication and anchors
         n = reg.size
         return FeatureSet(
@@ -906,8 +912,8 @@ class LatticeGradation:
             pair=np.full(n, -1, np.int32), st=st.astype(np.float64),
         )
 
-    def _regions(self, t_super, rows):
-        pick = self.region_spacing(t_super)
+    def _regions(self, t_super, rows, max_spacing=None):
+        pick = self.region_spacing(t_super, max_spacing)
         parts = []
         for j, lat in enumerate(self.lattices):
             regs = np.nonzero(pick == j)[0]

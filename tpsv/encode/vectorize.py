@@ -433,6 +433,7 @@ def make_model(
     fit: bool = True,
     fit_sub: int = 1,
     fit_iterations: int = 6,
+    max_spacing: np.ndarray | None = None,
 ) -> Model:
     """Stage 4: the model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
@@ -451,6 +452,8 @@ def make_model(
     fit : bool
     fit_sub, fit_iterations : int
         Pixel lattice and iterations of the fit.
+    max_spacing : ndarray (n_regions,), optional
+        The coarsest lattice spacing (pixels) each region may get (``"tpsv"`` scheme).
 
     Returns
     -------
@@ -461,7 +464,8 @@ def make_model(
     if scheme_of(params) == "paper":
         feats = extractor.extract(params.t_canny, params.t_super).in_patch_space(patches)
     else:
-        feats = tpsv_features(geometry, extractor, params.t_canny, params.t_super).in_patch_space(patches)
+        feats = tpsv_features(geometry, extractor, params.t_canny, params.t_super,
+                              max_spacing).in_patch_space(patches)
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
@@ -498,12 +502,14 @@ def fit_model(rgb: np.ndarray, geometry: Geometry, model: Model, fit_sub: int = 
     return model
 
 
-def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float) -> FeatureSet:
+def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float,
+                  max_spacing: np.ndarray | None = None) -> FeatureSet:
     """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known.
 
     Curvilinear pairs (one per ``CURVE_STEP`` block), the gradation lattice
-    (cells holding an edge pixel subdivided) without its features next to a
-    pair, and the anchors regions still need.
+    (cells holding an edge pixel subdivided; each region's spacing at most its
+    ``max_spacing``, pixels, when given) without its features next to a pair,
+    and the anchors regions still need.
     """
     w, h = extractor.w, extractor.h
     lattice = geometry.lattice(extractor.lab)  # before the gradient of the curvilinear features is made
@@ -513,7 +519,7 @@ def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: floa
         cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, w - 1)
         cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, h - 1)
         edge = np.unique(cy * w + cx)
-    grad = drop_near(lattice.features(t_super, edge), cur, DEDUP_PX, (w, h))
+    grad = drop_near(lattice.features(t_super, edge, max_spacing), cur, DEDUP_PX, (w, h))
     both = FeatureSet.concat([cur, grad])
     return FeatureSet.concat([both, extractor.anchors(both)])
 
