@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -62,6 +61,7 @@ import numpy as np
 from .. import tps
 from ..color import lab_to_srgb_jacobian, srgb_to_lab
 from ..rendering.pixelmap import pixel_map
+from ..threads import pool as host_pool
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -266,30 +266,15 @@ def _threads() -> int:
     return max(1, min(8, n))
 
 
-_POOL = None
-
-
-def _forget_pool() -> None:
-    global _POOL
-    _POOL = None  # a forked child has none of the parent's threads
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
-
-
 def _pool_map(fn, items):
     """``map(fn, items)`` on a few host threads (numpy releases the GIL in the heavy calls).
 
-    One pool serves every call (its threads idle between calls); ``fn`` must not
+    One pool serves every call (:func:`tpsv.threads.pool`); ``fn`` must not
     call ``_pool_map`` itself.
     """
-    global _POOL
     items = list(items)
     if len(items) > 1 and _threads() > 1:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(max_workers=_threads(), thread_name_prefix="tpsv-fit")
-        return list(_POOL.map(fn, items))
+        return list(host_pool("fit", _threads()).map(fn, items))
     return [fn(x) for x in items]
 
 

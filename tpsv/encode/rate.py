@@ -105,8 +105,9 @@ def smooth_fills(rgb: np.ndarray, shown: np.ndarray, index: np.ndarray, transpar
     gradient the coarsest lattice does not follow (a ramp that is straight
     in sRGB is curved in Lab) in a region with little texture, which the
     detail texture, coded by AVIF and magnified, would turn into blotches.
-    The samples' regions hold 10-26 levels of texture and noise and stay as
-    they are; the synthetic shapes' backgrounds hold 1-4.
+    The samples' regions (with their label maps) hold 4.7-42 levels of
+    texture and noise and stay as they are; the synthetic shapes'
+    backgrounds hold 0.7-1.4.
 
     Parameters
     ----------
@@ -179,16 +180,23 @@ class Trials:
         lattice of :data:`SMOOTH_FILL_PX`.
         """
         if self.base is None:
-            base = self._base()
-            fine = smooth_fills(self.rgb, base[1], self.geometry.index, [r.transparent for r in base[0].model.regions])
+            ev, shown = self._base()
+            clear = [r.transparent for r in ev.model.regions]
+            fine = smooth_fills(self.rgb, shown, self.geometry.index, clear)
             if fine.any():
-                base = None
+                ev = shown = None
                 give_back()
-                base = self._base(np.where(fine, SMOOTH_FILL_PX, np.inf))
-            self.base = base
+                ev, shown = self._base(np.where(fine, SMOOTH_FILL_PX, np.inf))
+            texels = detail_layer.residual_texels(self.rgb, shown)
+            clear = np.array(clear + [False])
+            texels[clear[self.geometry.index]] = DETAIL_ZERO  # nobody sees a transparent region's texture
+            self.base = (ev, shown, texels)
+            give_back()  # before the AVIF encoder takes its own
         return self.base
 
     def _base(self, max_spacing=None):
+        """``(evaluation, render at scale 1)`` of the base, each region's lattice spacing at most
+        its ``max_spacing`` (px) where given."""
         h, w = self.rgb.shape[:2]
         p = replace(self.params, t_canny=BASE_T_CANNY, t_super=BASE_T_SUPER, l_step=BASE_STEPS[0],
                     ab_step=BASE_STEPS[1])
@@ -204,12 +212,7 @@ class Trials:
         data = codec.encode(model)
         decoded = codec.decode(data)
         shown = render(decoded, device=self.device)
-        ev = Evaluation(data, decoded, metrics.mse(self.rgb, shown))
-        texels = detail_layer.residual_texels(self.rgb, shown)
-        clear = np.array([r.transparent for r in decoded.regions] + [False])
-        texels[clear[self.geometry.index]] = DETAIL_ZERO  # nobody sees a transparent region's texture
-        give_back()  # before the AVIF encoder takes its own
-        return ev, shown, texels
+        return Evaluation(data, decoded, metrics.mse(self.rgb, shown)), shown
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:
         key = (l_step, ab_step)

@@ -21,14 +21,13 @@ threads (:func:`split_launch`); results do not depend on the split.
 
 from __future__ import annotations
 
-import functools
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from ..threads import pool as host_pool
 from ..tps import kernel_lambda
 from . import resolve_device
 from . import warp as _warp
@@ -202,17 +201,4 @@ def split_launch(device: str, n: int, threads: int | None, launch) -> None:
     nb = nt * 4
     edges = np.linspace(0, n, nb + 1).astype(int)
     bands = [(int(edges[i]), int(edges[i + 1])) for i in range(nb) if edges[i + 1] > edges[i]]
-    list(_pool(nt).map(lambda b: launch(*b), bands))
-
-
-@functools.cache
-def _pool(threads: int) -> ThreadPoolExecutor:
-    """One pool of host threads per thread count, kept for the process: starting
-    the threads anew for every launch cost about 8 ms of a 512x512 CPU render."""
-    return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="tpsv-launch")
-
-
-# a forked child has the parent's pool objects but none of their threads: it makes its own
-# (as tpsv.encode.fit's pool does)
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_pool.cache_clear)
+    list(host_pool("launch", nt).map(lambda b: launch(*b), bands))
