@@ -282,6 +282,9 @@ def test_a_gradient_fill_gets_a_finer_base_and_comes_back_smooth(monkeypatch):
         m.setattr(rate, "SMOOTH_FILL_MIN", np.inf)  # as before smooth fills were found
         coarse = encode_quality(rgb, labels)
     assert len(res.model.features) > len(coarse.model.features)
+    # a base with a fill gets the finer colour steps, one without keeps the coarse ones
+    steps = lambda r: (r.model.params.l_step, r.model.params.ab_step)  # noqa: E731
+    assert steps(res) == rate.SMOOTH_FILL_STEPS and steps(coarse) == rate.BASE_STEPS
     base = lambda r: render(dataclasses.replace(codec.decode(r.data), detail=None))  # noqa: E731
     assert psnr(rgb, base(res)) > psnr(rgb, base(coarse)) + 2.0
     assert res.psnr > coarse.psnr + 1.0 and len(res.data) <= len(coarse.data) * 1.05

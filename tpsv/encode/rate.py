@@ -54,13 +54,19 @@ BASE_STEPS = (4, 4)
 #: Iterations of the base's colour fit (4 left the shapes' fills 1 dB short of converged).
 BASE_FIT_ITERATIONS = 30
 #: Smooth fills (:func:`smooth_fills`): the blur (px), the least RMS of the smooth residual
-#: and the most of the rest (sRGB, 0-1), and the lattice spacing (px) such a region gets.
-#: On the synthetic shapes at 8x (``tpsv bench``, edge table, default column) the base's
-#: gradients then come back smooth: 42.47 -> 43.9 dB at about the same bytes.
+#: and the most of the rest (sRGB, 0-1), the lattice spacing (px) such a region gets and the
+#: colour steps of a base that has one. On the synthetic shapes at 8x (``tpsv bench``, edge
+#: table, default column): the coarsest lattice 42.47 dB / 1761 B; fills on a 16 px lattice
+#: 43.91 dB / 1755 B, on 8 px 43.99 dB / 1860 B. Steps 4 were then the limit:
+#: quantised Lab colours (4 a/b units a step) put bumps into the fill that the texture
+#: carried at 1x and AVIF coded with its own error. Steps 1 on the 16 px lattice: 45.14 dB /
+#: 1727 B, on 12 px 45.55 dB / 1751 B (steps 2: 45.03 dB / 1759 B), as the texture then
+#: holds almost nothing in the fills and costs less than the finer colours.
 SMOOTH_SIGMA = 4.0
 SMOOTH_FILL_MIN = 3.0 / 255.0
 SMOOTH_FILL_TEXTURE = 4.0 / 255.0
-SMOOTH_FILL_PX = 16.0
+SMOOTH_FILL_PX = 12.0
+SMOOTH_FILL_STEPS = (1, 1)
 
 
 def base_fit_sub(width: int, height: int) -> int:
@@ -177,7 +183,8 @@ class Trials:
         samples, for 1.5 times the time and, on a 2048x2048 photo, 39 s and
         4.8 GB of peak memory. Regions whose residual under the coarsest
         lattice is a smooth fill (:func:`smooth_fills`) are made again on a
-        lattice of :data:`SMOOTH_FILL_PX`.
+        lattice of :data:`SMOOTH_FILL_PX`, and that base gets the colour steps
+        :data:`SMOOTH_FILL_STEPS` (steps are the file's, not a region's).
         """
         if self.base is None:
             ev, shown = self._base()
@@ -186,7 +193,7 @@ class Trials:
             if fine.any():
                 ev = shown = None
                 give_back()
-                ev, shown = self._base(np.where(fine, SMOOTH_FILL_PX, np.inf))
+                ev, shown = self._base(np.where(fine, SMOOTH_FILL_PX, np.inf), SMOOTH_FILL_STEPS)
             texels = detail_layer.residual_texels(self.rgb, shown)
             clear = np.array(clear + [False])
             texels[clear[self.geometry.index]] = DETAIL_ZERO  # nobody sees a transparent region's texture
@@ -194,12 +201,12 @@ class Trials:
             give_back()  # before the AVIF encoder takes its own
         return self.base
 
-    def _base(self, max_spacing=None):
+    def _base(self, max_spacing=None, steps=BASE_STEPS):
         """``(evaluation, render at scale 1)`` of the base, each region's lattice spacing at most
-        its ``max_spacing`` (px) where given."""
+        its ``max_spacing`` (px) where given, its colours quantised by ``steps`` (L, a/b)."""
         h, w = self.rgb.shape[:2]
-        p = replace(self.params, t_canny=BASE_T_CANNY, t_super=BASE_T_SUPER, l_step=BASE_STEPS[0],
-                    ab_step=BASE_STEPS[1])
+        p = replace(self.params, t_canny=BASE_T_CANNY, t_super=BASE_T_SUPER, l_step=steps[0],
+                    ab_step=steps[1])
         # per-pixel data is dropped as soon as its stage is done: the peak memory is the
         # largest stage's, not the sum of them (issue 12)
         model = make_model(self.rgb, self.geometry, FeatureExtractor(self.rgb, self.geometry.index), p,
