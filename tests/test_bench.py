@@ -74,11 +74,12 @@ def test_edge_table_small():
     e = edge_table(variants=2, size=32, scale=4, iterations=1)
     assert e["size"] == 32 and e["scale"] == 4 and [v["seed"] for v in e["variants"]] == [0, 1]
     for v in e["variants"] + [e["mean"]]:
-        for k in ("tpsv", "default", "bicubic", "lanczos"):
+        for k in ("tpsv", "default", "auto", "bicubic", "lanczos"):
             assert 15 < v[k]["psnr"] < 80 and 0 < v[k]["gmsd"] < 0.5
-    assert all(v[k]["bytes"] > 0 for v in e["variants"] for k in ("tpsv", "default"))
+    assert all(v[k]["bytes"] > 0 for v in e["variants"] for k in ("tpsv", "default", "auto"))
+    assert all(v["auto"]["regions"] >= 1 for v in e["variants"])
     text = edge_table_text(e)
-    assert "seed 1" in text and "mean" in text and "lanczos" in text and "default" in text
+    assert "seed 1" in text and "mean" in text and "lanczos" in text and "default" in text and "auto" in text
 
 
 # --------------------------------------------------------------------------- GMSD

@@ -263,7 +263,7 @@ def magnification_table(rgb: np.ndarray, factor: int, device: str) -> dict:
 
 
 #: Columns of the edge table.
-EDGE_METHODS = ("tpsv", "default", "bicubic", "lanczos")
+EDGE_METHODS = ("tpsv", "default", "auto", "bicubic", "lanczos")
 
 
 def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations: int = 20,
@@ -274,7 +274,9 @@ def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations:
     to 8 bits as a PNG would be, is vectorised with its label map twice: by the
     paper's threshold search (``tpsv``: ``iterations`` of it; the pure vector
     image of ``vectorize --search``) and at the default quality with the detail
-    layer (``default``: ``vectorize`` without options); each is rendered at
+    layer (``default``: ``vectorize --labels``), and without its label map
+    (``auto``: ``vectorize`` without options, the regions found by
+    :func:`tpsv.geometry.segment.segment_auto`); each is rendered at
     ``scale``, and bicubic and Lanczos upscale the same pixels. Each is
     compared with the analytic picture at ``scale`` (PSNR and GMSD).
 
@@ -282,7 +284,7 @@ def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations:
     -------
     dict
         ``{"size", "scale", "variants": [{"seed", "tpsv": {"psnr", "gmsd", "bytes"},
-        "default": ..., "bicubic": {"psnr", "gmsd"}, "lanczos": ...}],
+        "default": ..., "auto": ..., "bicubic": {"psnr", "gmsd"}, "lanczos": ...}],
         "mean": {method: {"psnr", "gmsd"}}}``
     """
     from .shapes import shapes
@@ -296,13 +298,16 @@ def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations:
         ref, _ = shapes(size, scale, seed)
         res = vectorize(rgb, labels, iterations=iterations, seed=seed, device=device)
         default = encode_quality(rgb, labels, seed=seed, device=device)
+        auto = encode_quality(rgb, None, seed=seed, device=device)
         outs = {"tpsv": render(res.model, scale=scale, device=device),
-                "default": render(default.model, scale=scale, device=device)}
+                "default": render(default.model, scale=scale, device=device),
+                "auto": render(auto.model, scale=scale, device=device)}
         for method in ("bicubic", "lanczos"):
             outs[method] = baseline.upscale(rgb, scale, method)
         row = {"seed": seed} | {k: {"psnr": metrics.psnr(ref, v), "gmsd": metrics.gmsd(ref, v)}
                                 for k, v in outs.items()}
-        row["tpsv"]["bytes"], row["default"]["bytes"] = len(res.data), len(default.data)
+        row["tpsv"]["bytes"], row["default"]["bytes"], row["auto"]["bytes"] = len(res.data), len(default.data), len(auto.data)
+        row["auto"]["regions"] = len(auto.model.regions)
         rows.append(row)
     mean = {k: {m: float(np.mean([r[k][m] for r in rows])) for m in ("psnr", "gmsd")}
             for k in EDGE_METHODS} if rows else {}
@@ -313,8 +318,8 @@ def edge_table_text(edges: dict) -> str:
     """The printed edge table."""
     out = [f"Edges: synthetic shapes {edges['size']}x{edges['size']} rendered at {edges['scale']}x "
            f"against the analytic picture: PSNR (dB) / GMSD (tpsv: --search, pure vector; "
-           f"default: quality 75 with detail)",
-           f"{'variant':<12}{'tpsv':>18}{'default':>18}{'bicubic':>18}{'lanczos':>18}{'tpsv - lanczos':>16}"]
+           f"default: quality 75 with detail; auto: the same without the label map)",
+           f"{'variant':<12}" + "".join(f"{k:>18}" for k in EDGE_METHODS) + f"{'tpsv - lanczos':>16}"]
     rows = [(f"seed {r['seed']}", r) for r in edges["variants"]]
     if edges["variants"]:
         rows.append(("mean", edges["mean"]))

@@ -107,7 +107,8 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     --out's plots draw these curves too), the 4x
     magnification comparison against bicubic and Lanczos (PSNR, SSIM, GMSD),
     the edge table (synthetic shapes rendered at 8x against the analytic
-    picture, PSNR and GMSD next to bicubic and Lanczos; once per run), the
+    picture, PSNR and GMSD, with and without their label map, next to bicubic
+    and Lanczos; once per run), the
     edit latencies (recolor and deform through a live image, at the model's
     size and, with --device cuda, at 1920x1080, next to the device table of
     whole renders, prepared frames and new sizes) and CPU seconds.
