@@ -101,6 +101,52 @@ def test_segment_auto_default_count():
     assert 4 <= lab6.max() + 1 <= 8  # approximately the count asked for
 
 
+def test_segment_auto_keeps_shapes_on_a_gradient_whole():
+    """A disc, a square and a ring with gradient fills on a gradient background (the edge table's
+    first variant): the Ward merge cut the background and swallowed the square; the regions merged
+    by the step across their borders explain it as smooth fills and are kept."""
+    from tpsv.bench.shapes import shapes
+
+    rgb, truth = shapes(96, 1, 0)
+    lab = segment_auto(np.round(rgb * 255).astype(np.uint8))  # as read from a PNG
+    for t in np.unique(truth):
+        inside = truth == t
+        iou = max(((inside & (lab == a)).sum() / (inside | (lab == a)).sum()) for a in np.unique(lab[inside]))
+        assert iou > 0.7, (t, iou)
+
+
+def test_fill_residual_is_zero_for_affine_fills_and_grows_with_a_wrong_cut():
+    from tpsv.geometry.segment import fill_residual
+
+    h, w = 40, 60
+    yy, xx = np.mgrid[:h, :w].astype(np.float64)
+    truth = (xx >= 30).astype(np.int32)
+    lab = np.where(truth[..., None] == 0, np.stack([50 + 0.5 * xx, 0.2 * yy, -xx / 3], -1),
+                   np.stack([20 + 0.1 * yy, 30 + 0 * xx, 10 - 0.4 * xx], -1))
+    assert fill_residual(lab, truth) < 1e-3  # (sums of squares less the fit: rounding only)
+    wrong = (xx >= 20).astype(np.int32)
+    assert fill_residual(lab, wrong) > 1.0
+
+
+def test_boundary_merge_keeps_the_border_sums_of_the_merged_regions():
+    """The summed steps across each live border equal those recomputed from the merged map."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import _borders, _roots, _superpixels, _WardMerge
+
+    img, _ = _synthetic()
+    sp, n = _superpixels(img)
+    lab = lab_image(img, clip=True)
+    g = _WardMerge(sp, n, lab, 0, boundary=True)
+    g.run(6)
+    merged = _roots(g.parent)[sp]
+    roots = np.unique(merged)
+    a, b, cnt, steps = _borders(merged, int(merged.max()) + 1, lab)
+    assert set(roots.tolist()) == set(np.nonzero(g.alive)[0].tolist())
+    for x, y, c, v in zip(a, b, cnt, steps):
+        assert g.nbr[x][y] == c
+        assert g.step[x][y] == pytest.approx(v, rel=1e-9)
+
+
 def _strokes(h=96, w=128):
     s = np.zeros((h, w, 3), np.uint8)
     s[10:12, 80:110] = (0, 0, 255)  # sky
