@@ -381,20 +381,26 @@ def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:
     float
     """
     h, w = labels.shape
-    L = labels.ravel().astype(np.int64)
-    n = int(L.max()) + 1
-    yy, xx = np.mgrid[:h, :w]
-    X = np.stack([xx.ravel() / max(w, 1), yy.ravel() / max(h, 1), np.ones(h * w)], axis=1)
-    C = lab.reshape(-1, 3).astype(np.float64)
-    # per region the normal equations of the fit, from sums over its pixels
-    xtx = np.stack([np.bincount(L, X[:, i] * X[:, j], n) for i in range(3) for j in range(3)], 1).reshape(n, 3, 3)
-    xtc = np.stack([np.bincount(L, X[:, i] * C[:, k], n) for i in range(3) for k in range(3)], 1).reshape(n, 3, 3)
-    ctc = np.bincount(L, (C * C).sum(axis=1), n)
+    n = int(labels.max()) + 1
+    # per region the normal equations of the fit, summed band by band (a few float64 rows at a time)
+    xtx = np.zeros((n, 3, 3))
+    xtc = np.zeros((n, 3, 3))
+    ctc = np.zeros(n)
+    for a, b in row_bands(h, w):
+        L = labels[a:b].ravel().astype(np.int64)
+        yy, xx = np.mgrid[a:b, :w]
+        X = np.stack([xx.ravel() / max(w, 1), yy.ravel() / max(h, 1), np.ones(L.size)], axis=1)
+        C = lab[a:b].reshape(-1, 3).astype(np.float64)
+        for i in range(3):
+            for j in range(3):
+                xtx[:, i, j] += np.bincount(L, X[:, i] * X[:, j], n)
+                xtc[:, i, j] += np.bincount(L, X[:, i] * C[:, j], n)
+        ctc += np.bincount(L, (C * C).sum(axis=1), n)
     sq = ctc.copy()
     for r in range(n):
         beta = np.linalg.pinv(xtx[r]) @ xtc[r]
         sq[r] -= float((beta * xtc[r]).sum())
-    return float(np.sqrt(max(sq.sum(), 0.0) / L.size))
+    return float(np.sqrt(max(sq.sum(), 0.0) / max(labels.size, 1)))
 
 
 #: :func:`segment_auto` keeps the boundary-merged regions when their :func:`fill_residual`, times
