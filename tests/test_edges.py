@@ -557,3 +557,22 @@ def test_a_linear_gradient_comes_back_smooth():
     assert (m.params.l_step, m.params.ab_step) == (1, 1)
     err = np.abs(render(m) - rgb) * 255
     assert err.mean() < 0.5 and np.percentile(err, 99) < 2.0
+
+
+def test_a_border_the_label_map_places_ends_on_the_precise_curve():
+    """A disc on a flat background that the label map cuts in two: both T-junctions stay on the
+    disc's circle (the cut, placed by the label map to half a pixel, only says where along it)."""
+    size, density, (cx, cy, r) = 48, 16, (24.3, 23.6, 11.2)
+    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
+    cover = (np.hypot(xx - cx, yy - cy) < r).astype(np.float64).reshape(size, density, size, density).mean(axis=(1, 3))
+    rgb = (cover[..., None] * A + (1 - cover[..., None]) * B).astype(np.float32)
+    labels = np.where(cover >= 0.5, 1, np.where(np.arange(size)[None, :] < 24, 0, 2)).astype(np.int32)
+    model = vectorize(rgb, labels, search=False).model
+    disc = [reg for reg in model.regions if reg.label == 1][0].outline[0]
+    others = [p for reg in model.regions if reg.label != 1 for p in reg.outline]
+    keys = {tuple(np.round(v * 16).astype(int)) for p in others for v in p}
+    shared = np.array([v for v in disc if tuple(np.round(v * 16).astype(int)) in keys])
+    junctions = [v for v in shared if sum(np.any(np.all(np.isclose(p, v), axis=1)) for p in others) >= 2]
+    assert len(junctions) == 2
+    for v in junctions:
+        assert abs(np.hypot(v[0] - cx, v[1] - cy) - r) < 0.1, v
