@@ -306,7 +306,8 @@ def edge_table(variants: int = 3, size: int = 96, scale: int = 8, *, iterations:
             outs[method] = baseline.upscale(rgb, scale, method)
         row = {"seed": seed} | {k: {"psnr": metrics.psnr(ref, v), "gmsd": metrics.gmsd(ref, v)}
                                 for k, v in outs.items()}
-        row["tpsv"]["bytes"], row["default"]["bytes"], row["auto"]["bytes"] = len(res.data), len(default.data), len(auto.data)
+        for k, v in (("tpsv", res), ("default", default), ("auto", auto)):
+            row[k]["bytes"] = len(v.data)
         row["auto"]["regions"] = len(auto.model.regions)
         rows.append(row)
     mean = {k: {m: float(np.mean([r[k][m] for r in rows])) for m in ("psnr", "gmsd")}

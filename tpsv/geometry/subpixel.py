@@ -695,12 +695,12 @@ def _meeting_point(segments: list, fallback: np.ndarray) -> np.ndarray:
     lines cross where the regions' corner is; the junction zone's own points
     are pulled off it by the third region's colour. ``segments`` holds
     ``(points, tolerance)`` per curve. Where a precise curve runs on through
-    the junction and every other border there is one the label map places
-    (:func:`_through_curve`), the junction is put on that curve.
+    the junction and every other border there is placed at least partly by
+    the label map (:func:`_through_curve`), the junction is put on that curve.
     """
     through = _through_curve(segments, fallback)
     if through is not None:
-        return through
+        return through if np.hypot(*(through - fallback)) <= JUNCTION else fallback
     A = np.zeros((2, 2))
     b = np.zeros(2)
     for seg, _ in segments:
