@@ -198,6 +198,18 @@ def _superpixels(rgb: np.ndarray) -> tuple[np.ndarray, int]:
     return _renumber(sp)
 
 
+def _fold(border: list[dict[int, float]], a: int, b: int) -> None:
+    """Per-border sums (``border[x][y]``, kept both ways) after ``b`` went into ``a``: the border
+    between them is gone, and ``b``'s borders with others add to ``a``'s."""
+    del border[a][b]
+    del border[b][a]
+    for x, v in border[b].items():
+        border[x].pop(b, None)
+        border[a][x] = border[a].get(x, 0.0) + v
+        border[x][a] = border[a][x]
+    border[b] = {}
+
+
 class _WardMerge:
     """The superpixel adjacency graph, merged greedily by shape-weighted Ward cost.
 
@@ -265,22 +277,8 @@ class _WardMerge:
         self.size[a] += self.size[b]
         self.csum[a] = [x + y for x, y in zip(self.csum[a], self.csum[b])]
         self.per[a] = self.per[a] + self.per[b] - 2 * nbr[a][b]
-        del nbr[a][b]
-        del nbr[b][a]
-        for x, l in nbr[b].items():
-            nbr[x].pop(b, None)
-            nbr[a][x] = nbr[a].get(x, 0.0) + l
-            nbr[x][a] = nbr[a][x]
-        nbr[b] = {}
-        if self.step is not None:
-            step = self.step
-            del step[a][b]
-            del step[b][a]
-            for x, v in step[b].items():
-                step[x].pop(b, None)
-                step[a][x] = step[a].get(x, 0.0) + v
-                step[x][a] = step[a][x]
-            step[b] = {}
+        for border in (nbr,) if self.step is None else (nbr, self.step):
+            _fold(border, a, b)
 
     def run(self, target: int, snapshot_below: int = 0):
         """Merge down to ``target`` nodes, cheapest pair first.
