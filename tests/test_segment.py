@@ -149,6 +149,23 @@ def test_boundary_merge_keeps_the_border_sums_of_the_merged_regions():
         assert g.step[x][y] == pytest.approx(v, rel=1e-9)
 
 
+def test_regions_the_image_shows_no_edge_between_are_joined():
+    """A ramp cut in two beside a square of another colour: the cut goes, the square's border stays."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import _join_seamless
+
+    h, w = 40, 60
+    xx = np.mgrid[:h, :w][1] / (w - 1.0)
+    rgb = np.stack([0.2 + 0.6 * xx, 0.5 - 0.3 * xx, 0.4 + 0 * xx], -1).astype(np.float32)
+    rgb[10:25, 40:55] = (0.9, 0.9, 0.1)
+    labels = np.where(np.arange(w)[None, :] < 30, 0, 1).repeat(h, 0).astype(np.int32)
+    labels[10:25, 40:55] = 2
+    out = _join_seamless(labels, lab_image(rgb, clip=True))
+    assert out.max() == 1
+    assert len(np.unique(out[labels != 2])) == 1 and len(np.unique(out[labels == 2])) == 1
+    assert out[0, 0] != out[15, 45]
+
+
 def _strokes(h=96, w=128):
     s = np.zeros((h, w, 3), np.uint8)
     s[10:12, 80:110] = (0, 0, 255)  # sky
