@@ -254,17 +254,23 @@ class _WardMerge:
                 self.step[a][b] = float(v)
                 self.step[b][a] = float(v)
 
-    def cost(self, a: int, b: int) -> float:
-        """Ward cost of merging neighbours ``a`` and ``b``, times 1..4 for a short shared border."""
+    def difference(self, a: int, b: int) -> float:
+        """Squared colour difference (Lab) of neighbours ``a`` and ``b``: of their means, or, with
+        ``boundary``, the smaller of that and their border's mean squared step."""
         na, nb = self.size[a], self.size[b]
         ca = [x / na for x in self.csum[a]]
         cb = [x / nb for x in self.csum[b]]
         d2 = sum((x - y) ** 2 for x, y in zip(ca, cb))
         if self.step is not None:
             d2 = min(d2, self.step[a][b] / max(1.0, self.nbr[a][b]))
+        return d2
+
+    def cost(self, a: int, b: int) -> float:
+        """Ward cost of merging neighbours ``a`` and ``b``, times 1..4 for a short shared border."""
+        na, nb = self.size[a], self.size[b]
         frac = self.nbr[a][b] / max(1.0, min(self.per[a], self.per[b]))
         shape = 1.0 + 3.0 * max(0.0, 1.0 - 4.0 * frac)  # short shared border: merge later
-        return na * nb / (na + nb) * d2 * shape * self.jitter[min(a, b)]
+        return na * nb / (na + nb) * self.difference(a, b) * shape * self.jitter[min(a, b)]
 
     def _entry(self, a: int, x: int):
         return (self.cost(a, x), min(a, x), max(a, x)) if a < x else (self.cost(x, a), x, a)
@@ -285,8 +291,9 @@ class _WardMerge:
 
         Returns
         -------
-        history : list of (int, float)
-            ``(node count after the merge, its cost)`` for every merge.
+        history : list of (int, float, float)
+            ``(node count after the merge, its cost, its colour difference)``
+            for every merge (the difference as :meth:`difference`'s square root).
         snapshots : dict
             ``parent`` (a list) after each merge that left at most
             ``snapshot_below`` nodes, by node count.
@@ -303,11 +310,12 @@ class _WardMerge:
                 continue
             if abs(c - self.cost(a, b)) > 1e-9 * max(1.0, abs(c)):
                 continue  # stale entry
+            step = float(np.sqrt(self.difference(a, b)))
             self._merge(a, b)
             for x in nbr[a]:
                 heapq.heappush(heap, self._entry(a, x))
             count -= 1
-            history.append((count, c))
+            history.append((count, c, step))
             if count <= snapshot_below:
                 snapshots[count] = list(self.parent)
         return history, snapshots
@@ -324,20 +332,15 @@ def _roots(parent: list[int]) -> np.ndarray:
     return np.array(par)
 
 
-def _elbow(history, snapshots: dict, default: list[int], running: bool = False) -> list[int]:
+def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
     """The merge forest at the region count in :data:`AUTO_COUNTS` where the next merge's cost jumps most.
 
-    Merging from ``k + 1`` to ``k`` regions cost ``costs[k]`` (with
-    ``running``, the most any merge down to ``k`` cost: a merge cheaper than
-    one before it is no jump); the jump at ``k`` is ``costs[k - 1] /
-    costs[k]``. Ties keep the smaller ``k``; without any candidate the count
-    is 8, or ``default`` when that was not recorded.
+    Merging from ``k + 1`` to ``k`` regions cost ``costs[k]``; the jump at
+    ``k`` is ``costs[k - 1] / costs[k]``. Ties keep the smaller ``k``;
+    without any candidate the count is 8, or ``default`` when that was not
+    recorded.
     """
-    costs = {}
-    top = 0.0
-    for k, c in history:
-        top = max(top, c) if running else c
-        costs[k] = top
+    costs = {k: c for k, c, _ in history}
     best_k, best_jump = 8, -1.0
     for k in range(AUTO_COUNTS[0], AUTO_COUNTS[1] + 1):
         if k in snapshots and (k - 1) in costs and k in costs:
@@ -355,13 +358,33 @@ def _merged(sp: np.ndarray, n: int, lab: np.ndarray, seed: int, n_regions: int |
     graph = _WardMerge(sp, n, lab, seed, boundary=boundary)
     if n_regions is None:
         history, snapshots = graph.run(1, snapshot_below=AUTO_COUNTS[1])
-        parent = _elbow(history, snapshots, graph.parent, running=boundary)
+        pick = _edge_stop if boundary else _elbow
+        parent = pick(history, snapshots, graph.parent)
     else:
         graph.run(n_regions)
         parent = graph.parent
     labels = _roots(parent)[sp]
     labels = split_connected(labels, min_size=default_min_size(sp.shape), sliver_width=1.5)
     return _join_seamless(labels, lab) if boundary else labels
+
+
+#: The boundary merge stops before its first merge of two regions this different (Lab units,
+#: :meth:`_WardMerge.difference`): an edge. The edge table's shapes give the same regions from 8 to 15.
+EDGE_STEP = 10.0
+
+
+def _edge_stop(history, snapshots: dict, default: list[int]) -> list[int]:
+    """The merge forest just before the first merge across an edge (:data:`EDGE_STEP`), its region
+    count held within :data:`AUTO_COUNTS`; ``default`` when that count was not recorded.
+
+    The boundary merge's costs do not rise steadily (a merge can leave a
+    neighbour's border cheaper than the merge before), so their largest jump,
+    which the Ward merge reads, stopped it too early or too late: a ring's hole
+    went into the ring, a background stayed cut.
+    """
+    k = next((count + 1 for count, _, step in history if step > EDGE_STEP), AUTO_COUNTS[0])
+    par = snapshots.get(min(max(k, AUTO_COUNTS[0]), AUTO_COUNTS[1]))
+    return default if par is None else par
 
 
 #: Regions whose shared border steps by less than this (median of its pixel pairs, Lab units) show no
@@ -468,8 +491,10 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
 
     A second merge of the same superpixels measures colour differences by the
     step across the shared border where that is smaller than the means'
-    difference (:class:`_WardMerge` with ``boundary``): a gradient is not cut
-    and a small shape of another colour is not swallowed. Its regions are
+    difference (:class:`_WardMerge` with ``boundary``), stops before its first
+    merge across an edge (:func:`_edge_stop`) and joins neighbours the image
+    shows no edge between (:func:`_join_seamless`): a gradient is not cut and
+    a small shape of another colour is not swallowed. Its regions are
     kept when they explain the image as smooth fills clearly better
     (:func:`fill_residual`, raised by :data:`REGION_COST` a region, at most
     :data:`FILL_GAIN` of the first's): drawings, logos and gradients. On
