@@ -57,26 +57,31 @@ def _renumber(comp: np.ndarray, lut: np.ndarray | None = None) -> tuple[np.ndarr
     return out, int(seen.size)
 
 
+def _border_pairs(comp: np.ndarray, n: int, col: np.ndarray | None = None):
+    """Every pair of 4-neighbour pixels of different labels: the key ``a * n + b`` (``a < b``) of its
+    two labels, and with ``col`` (H, W, C) the squared colour difference of the two pixels (else None)."""
+    keys, steps = [], []
+    for x, y, cx, cy in ((comp[:, :-1], comp[:, 1:], np.s_[:, :-1], np.s_[:, 1:]),
+                         (comp[:-1, :], comp[1:, :], np.s_[:-1, :], np.s_[1:, :])):
+        d = x != y
+        a, b = x[d].astype(np.int64), y[d].astype(np.int64)
+        keys.append(np.minimum(a, b) * n + np.maximum(a, b))
+        if col is not None:
+            steps.append(((col[cx][d].astype(np.float64) - col[cy][d]) ** 2).sum(axis=1))
+    return np.concatenate(keys), (np.concatenate(steps) if col is not None else None)
+
+
 def _borders(comp: np.ndarray, n: int, col: np.ndarray | None = None):
     """Shared border lengths: (a, b, count) arrays for every adjacent pair a < b (4-neighbours).
 
     With ``col`` (H, W, C), also the sum over the border's pixel pairs of their squared
     colour difference: (a, b, count, steps).
     """
-    pairs = []
-    for x, y, cx, cy in ((comp[:, :-1], comp[:, 1:], np.s_[:, :-1], np.s_[:, 1:]),
-                         (comp[:-1, :], comp[1:, :], np.s_[:-1, :], np.s_[1:, :])):
-        d = x != y
-        step = None if col is None else ((col[cx][d].astype(np.float64) - col[cy][d]) ** 2).sum(axis=1)
-        pairs.append((x[d].astype(np.int64), y[d].astype(np.int64), step))
-    a = np.concatenate([p[0] for p in pairs])
-    b = np.concatenate([p[1] for p in pairs])
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    key, inv, cnt = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
+    keys, steps = _border_pairs(comp, n, col)
+    key, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
     if col is None:
         return key // n, key % n, cnt
-    steps = np.bincount(inv.ravel(), np.concatenate([p[2] for p in pairs]), minlength=key.size)
-    return key // n, key % n, cnt, steps
+    return key // n, key % n, cnt, np.bincount(inv.ravel(), steps, minlength=key.size)
 
 
 def split_connected(
@@ -321,14 +326,18 @@ class _WardMerge:
         return history, snapshots
 
 
+def _root(parent: list[int], x: int) -> int:
+    """The root of node ``x`` of a merge forest (``parent[r] == r`` at a root)."""
+    while parent[x] != x:
+        x = parent[x]
+    return x
+
+
 def _roots(parent: list[int]) -> np.ndarray:
-    """The root of every node of a merge forest (``parent[x] == x`` at a root)."""
+    """The root of every node of a merge forest."""
     par = list(parent)
     for x in range(len(par)):
-        r = x
-        while par[r] != r:
-            r = par[r]
-        par[x] = r
+        par[x] = _root(par, x)
     return np.array(par)
 
 
@@ -353,8 +362,10 @@ def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
 
 def _merged(sp: np.ndarray, n: int, lab: np.ndarray, seed: int, n_regions: int | None,
             boundary: bool) -> np.ndarray:
-    """Superpixels ``sp`` merged (:class:`_WardMerge`) to ``n_regions`` or to the elbow's count;
-    slivers and tiny pieces then merged by :func:`split_connected`."""
+    """Superpixels ``sp`` merged (:class:`_WardMerge`) to ``n_regions``, else to the elbow's count
+    (:func:`_elbow`) or, with ``boundary``, to the first edge (:func:`_edge_stop`); slivers and tiny
+    pieces then merged by :func:`split_connected`, and with ``boundary`` neighbours without an edge
+    between them joined (:func:`_join_seamless`)."""
     graph = _WardMerge(sp, n, lab, seed, boundary=boundary)
     if n_regions is None:
         history, snapshots = graph.run(1, snapshot_below=AUTO_COUNTS[1])
@@ -396,36 +407,24 @@ SEAMLESS = 3.0
 def _join_seamless(labels: np.ndarray, lab: np.ndarray) -> np.ndarray:
     """``labels`` with neighbours joined where the image shows no edge between them.
 
-    The elbow can stop one merge short of a gradient's halves (3 of the edge
-    table's first 8 variants kept a cut through the background). The median
-    step is read, not the mean: the few pixel pairs where a border meets a
-    third region's anti-aliased pixels would carry a mean past any threshold.
+    The boundary merge reads a border's mean step, which the few pixel pairs
+    where the border meets a third region's anti-aliased pixels can carry
+    past :data:`EDGE_STEP`: it stopped short of a gradient's halves in 3 of
+    the edge table's first 8 variants. Here the median step is read.
     """
     m = int(labels.max()) + 1
-    keys, steps = [], []
-    for x, y, cx, cy in ((labels[:, :-1], labels[:, 1:], np.s_[:, :-1], np.s_[:, 1:]),
-                         (labels[:-1, :], labels[1:, :], np.s_[:-1, :], np.s_[1:, :])):
-        d = x != y
-        keys.append(np.minimum(x[d], y[d]).astype(np.int64) * m + np.maximum(x[d], y[d]))
-        steps.append(np.sqrt(((lab[cx][d].astype(np.float64) - lab[cy][d]) ** 2).sum(axis=1)))
-    key, step = np.concatenate(keys), np.concatenate(steps)
-    order = np.lexsort((step, key))
-    key, step = key[order], step[order]
+    key, step2 = _border_pairs(labels, m, lab)
+    order = np.lexsort((step2, key))
+    key, step2 = key[order], step2[order]
     pairs, first, count = np.unique(key, return_index=True, return_counts=True)
-    median = step[first + count // 2]
+    median = np.sqrt(step2[first + count // 2])
     parent = list(range(m))
     for k in pairs[(median < SEAMLESS) & (count >= 8)]:
         a, b = _root(parent, int(k // m)), _root(parent, int(k % m))
         parent[max(a, b)] = min(a, b)
     if all(parent[r] == r for r in range(m)):
         return labels
-    return _renumber(labels, np.array([_root(parent, r) for r in range(m)]))[0]
-
-
-def _root(parent: list[int], x: int) -> int:
-    while parent[x] != x:
-        x = parent[x]
-    return x
+    return _renumber(labels, _roots(parent))[0]
 
 
 def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:

@@ -698,21 +698,20 @@ def _meeting_point(segments: list, fallback: np.ndarray) -> np.ndarray:
     the junction and every other border there is placed at least partly by
     the label map (:func:`_through_curve`), the junction is put on that curve.
     """
-    through = _through_curve(segments, fallback)
-    if through is not None:
-        return through if np.hypot(*(through - fallback)) <= JUNCTION else fallback
-    A = np.zeros((2, 2))
-    b = np.zeros(2)
-    for seg, _ in segments:
-        c = seg.mean(axis=0)
-        _, _, vt = np.linalg.svd(seg - c)
-        P = np.eye(2) - np.outer(vt[0], vt[0])
-        A += P
-        b += P @ c
-    if len(segments) < 2 or np.linalg.cond(A) > 50.0:
-        return fallback
-    x = np.linalg.solve(A, b)
-    # the lines are only a local reading: a crossing far away is a misreading
+    x = _through_curve(segments, fallback)
+    if x is None:
+        A = np.zeros((2, 2))
+        b = np.zeros(2)
+        for seg, _ in segments:
+            c = seg.mean(axis=0)
+            _, _, vt = np.linalg.svd(seg - c)
+            P = np.eye(2) - np.outer(vt[0], vt[0])
+            A += P
+            b += P @ c
+        if len(segments) < 2 or np.linalg.cond(A) > 50.0:
+            return fallback
+        x = np.linalg.solve(A, b)
+    # the lines are only a local reading: a point found far away is a misreading
     return x if np.hypot(*(x - fallback)) <= JUNCTION else fallback
 
 
@@ -742,7 +741,7 @@ def _through_curve(segments: list, near: np.ndarray) -> np.ndarray | None:
     _, _, vt = np.linalg.svd(pts - c)
     u, v = vt[0], vt[1]
     x, y = (pts - c) @ u, (pts - c) @ v
-    coef = np.polyfit(x, y, 2) if np.ptp(x) > 0 and len(pts) >= 3 else np.zeros(3)
+    coef = np.polyfit(x, y, 2) if np.ptp(x) > 0 else np.zeros(3)  # (each curve brings 3 points or more)
     xn = float((near - c) @ u)
     return c + xn * u + float(np.polyval(coef, xn)) * v
 
