@@ -106,6 +106,9 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     against JPEG and WebP over 0.25-2 bpp and over all rates both reach;
     --out's plots draw these curves too), the 4x
     magnification comparison against bicubic and Lanczos (PSNR, SSIM, GMSD),
+    a .tpsv magnified 4x (the downscaled picture vectorised at the default
+    quality and rendered at 4x, against bicubic of the small picture and of
+    the file's scale-1 render; PSNR, GMSD and PSNR along region borders),
     the edge table (synthetic shapes rendered at 8x against the analytic
     picture, PSNR and GMSD, with and without their label map, next to bicubic
     and Lanczos; once per run), the
