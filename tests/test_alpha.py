@@ -51,7 +51,8 @@ def test_the_transparent_part_becomes_transparent_regions(encoded):
     assert (res.model.regions[model.regions.index(clear[0])].transparent)
     # flags: detail and alpha; the transparent region carries no texture
     version, flags = np.frombuffer(res.data[8:12], "<u2")
-    assert version == layout.VERSION and flags == layout.FLAG_DETAIL | layout.FLAG_ALPHA | layout.FLAG_CURVES
+    assert version == layout.VERSION
+    assert flags == layout.FLAG_DETAIL | layout.FLAG_ALPHA | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP
     assert model.detail.mode[model.regions.index(clear[0])] == 0
 
 

@@ -134,7 +134,8 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     assert codec.encode(codec.quantize(model)) == textured.data
     sizes = codec.section_sizes(textured.data)
     assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
-    assert struct.unpack_from("<HH", textured.data, 8) == (layout.VERSION, layout.FLAG_DETAIL | layout.FLAG_CURVES)
+    assert struct.unpack_from("<HH", textured.data, 8) == (
+        layout.VERSION, layout.FLAG_DETAIL | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP)
 
 
 def test_a_tall_texture_puts_its_planes_side_by_side():

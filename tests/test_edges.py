@@ -518,7 +518,7 @@ def test_a_blurred_border_renders_the_blurred_step_at_any_scale():
     # flat fills, exactly A and B: what is left to see is the border's coverage
     lab = np.where((sharp.features.region == 0)[:, None], srgb_to_lab(A[None])[0], srgb_to_lab(B[None])[0])
     sharp = dataclasses.replace(sharp, features=dataclasses.replace(sharp.features, lab=lab.astype(np.float32)))
-    m = dataclasses.replace(sharp, blur=np.array([[0.0, 1.0, sigma]]))
+    m = dataclasses.replace(sharp, blur=np.array([[0.0, 1.0, sigma]]), blur_map=None)
     left = next(r for r in m.regions if r.label == 0).outline[0]
     x0 = left[:, 0].max()  # the fitted border, straight down from (x0, 0) to (x0, size)
     assert [x0, 0.0] in left.tolist() and [x0, float(size)] in left.tolist()

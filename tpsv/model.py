@@ -274,6 +274,36 @@ class Detail:
 
 
 @dataclass
+class BlurMap:
+    """Edge width along region borders point by point, where it changes along a border.
+
+    A border between two regions may be a sharp edge in one stretch and cross a
+    flat area in the next (a label map cuts a region in two there); one width
+    per pair of regions cannot suit both. ``sigma[i, j]`` is the edge width
+    (source px) at the centre ``((j + 0.5) cell, (i + 0.5) cell)`` of cell
+    ``(i, j)``, and a border point's width is the bilinear sample of ``sigma``
+    there (the grid's edges clamped): continuous along every border, the same
+    for both regions of a shared one. Only cells a border passes through are
+    stored (docs/FORMAT.md); the others hold the nearest stored value.
+
+    Attributes
+    ----------
+    cell : int
+        Cell side, source px.
+    sigma : ndarray, shape (gh, gw), float32
+        ``ceil(height / cell) x ceil(width / cell)``.
+    """
+
+    cell: int
+    sigma: np.ndarray
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, BlurMap):
+            return NotImplemented
+        return self.cell == other.cell and np.array_equal(self.sigma, other.sigma)
+
+
+@dataclass
 class Model:
     """A hybrid vector image.
 
@@ -296,6 +326,10 @@ class Model:
         scale). Borders not listed are sharp.
     detail : Detail or None
         The texture detail layer (None: the pure vector image).
+    blur_map : BlurMap or None
+        Edge width point by point along the borders; where there is one it
+        replaces ``blur`` in the renderer (``blur`` keeps a width per pair,
+        what an edit that moves outlines off the map falls back to).
     curves : bool
         Outlines are drawn as smooth curves through their vertices
         (``tpsv.geometry.curves``: centripetal Catmull-Rom, broken at corners,
@@ -311,3 +345,4 @@ class Model:
     blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
     detail: Detail | None = field(default=None, repr=False)
     curves: bool = False
+    blur_map: BlurMap | None = field(default=None, repr=False)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import click
+import numpy as np
 
 from . import main
 from .options import emit_json, json_option
@@ -37,6 +38,8 @@ def summary(data: bytes) -> dict:
         "transparent": [i for i, r in enumerate(model.regions) if r.transparent],
         # soft borders: (region a, region b, edge width in px); the others are sharp
         "edge_widths": [[int(a), int(b), float(w)] for a, b, w in model.blur],
+        # edge widths point by point (format version 7): cell side, the cells stored, widest and narrowest
+        "blur_map": None if model.blur_map is None else _map_summary(model),
         "quality": model.params.extra.get("quality"),
         # the texture detail layer: None for a pure vector image
         "detail": None if d is None else {
@@ -53,6 +56,14 @@ def summary(data: bytes) -> dict:
             "extra": dict(p.extra),
         },
     }
+
+
+def _map_summary(model) -> dict:
+    """The blur map as stored: cell side, cells, narrowest and widest width (px)."""
+    q = codec.quant.from_model(model)
+    w = q.map_values.astype(np.float64) / codec.quant.BLUR_SCALE
+    return {"cell": int(q.map_cell), "cells": int(len(w)), "min": float(w.min()) if w.size else 0.0,
+            "max": float(w.max()) if w.size else 0.0}
 
 
 def _pairs(items: dict) -> str:
@@ -85,6 +96,10 @@ def info(path: str, as_json: bool) -> None:
         click.echo(f"  borders   {len(widths)} soft (edge width {min(widths):g}-{max(widths):g} px), the others sharp")
     else:
         click.echo("  borders   all sharp")
+    bm = s["blur_map"]
+    if bm is not None:
+        click.echo(f"  blur map  {bm['cells']} cells of {bm['cell']} px along the borders, "
+                   f"edge width {bm['min']:g}-{bm['max']:g} px")
     q = s["quality"]
     click.echo(f"  quality   {q if isinstance(q, int) else 'not set (threshold mode)'}")
     d = s["detail"]

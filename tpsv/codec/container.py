@@ -96,7 +96,8 @@ def encode(model: Model) -> bytes:
     header = layout.Header(
         version=layout.VERSION, flags=(layout.FLAG_DETAIL if detail is not None else 0)
         | (layout.FLAG_ALPHA if q.transparent is not None and q.transparent.any() else 0)
-        | (layout.FLAG_CURVES if q.curves else 0),
+        | (layout.FLAG_CURVES if q.curves else 0)
+        | (layout.FLAG_BLUR_MAP if q.map_values is not None else 0),
         width=q.width, height=q.height,
         regions=len(q.labels), polygons=int(q.vert_counts.size),
         vertices=int(q.xy.shape[0]), ctrl_points=int(q.ctrl.size // 8),

@@ -18,7 +18,7 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 6
+VERSION = 7
 #: From this version on no outline polygon crosses itself (a file with one is refused);
 #: older files are mended as they are read (docs/FORMAT.md, Versions).
 SIMPLE_OUTLINES_SINCE = 6
@@ -29,6 +29,10 @@ FLAG_DETAIL = 1
 FLAG_ALPHA = 2
 #: Header flag (version 6): outlines are drawn as curves through their vertices (``Model.curves``).
 FLAG_CURVES = 4
+#: Header flag (version 7): the regions section holds a blur map (``Model.blur_map``: ``map_cell``, ``map``).
+FLAG_BLUR_MAP = 8
+#: Largest cell side (px) of a blur map.
+MAX_MAP_CELL = 64
 DETAIL_SIZES = struct.Struct("<II")
 
 #: Little-endian header: magic, version, flags, width, height, 5 counts,
@@ -129,6 +133,10 @@ class Header:
         return bool(self.flags & FLAG_CURVES)
 
     @property
+    def has_blur_map(self) -> bool:
+        return bool(self.flags & FLAG_BLUR_MAP)
+
+    @property
     def detail_offset(self) -> int:
         """Where the detail section's sizes start (after the three sections)."""
         return HEADER_SIZE + sum(self.compressed)
@@ -173,6 +181,8 @@ def raw_size_bounds(h: Header) -> tuple[int, int, int]:
         regions += 4 * h.polygons + 8 * h.vertices  # vertices per polygon, x, y as 32-bit
     if h.has_alpha:
         regions += 16 + (h.regions + 7) // 8  # key, bin header, a bit per region
+    if h.has_blur_map:
+        regions += 32 + (h.width // 2 + 1) * (h.height // 2 + 1)  # keys, cell side, a byte per cell of side >= 2
     features = SECTION_OVERHEAD + 4 * h.regions + 12 * h.features
     return params, regions, features
 
@@ -186,7 +196,8 @@ def detail_raw_bound(h: Header) -> int:
 
 def known_flags(version: int) -> int:
     """The header flags ``version`` defines."""
-    return (FLAG_DETAIL if version >= 3 else 0) | (FLAG_ALPHA if version >= 4 else 0) | (FLAG_CURVES if version >= 6 else 0)
+    return (FLAG_DETAIL if version >= 3 else 0) | (FLAG_ALPHA if version >= 4 else 0) | (FLAG_CURVES if version >= 6 else 0) \
+        | (FLAG_BLUR_MAP if version >= 7 else 0)
 
 
 def parse_header(data: bytes | memoryview) -> Header:

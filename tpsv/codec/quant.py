@@ -112,6 +112,10 @@ class Quantized:
     transparent: np.ndarray | None = None
     #: Outlines drawn as curves (``Model.curves``; header flag 4, version 6).
     curves: bool = False
+    #: Blur map (``Model.blur_map``; header flag 8, version 7): cell side (px) and the width of each cell
+    #: a shared border passes through (``geometry.edgewidth.border_cells``), ``round(16 sigma)``, uint8.
+    map_cell: int = 0
+    map_values: np.ndarray | None = None
 
 
 def st_bits_for(width: int, height: int, steps_per_px: int = ST_STEPS_PER_PX) -> int:
@@ -202,7 +206,52 @@ def from_model(model: Model) -> Quantized:
         kind=kind, pair=pair, blur=_quantize_blur(getattr(model, "blur", None), len(regions)),
         transparent=np.array([bool(getattr(r, "transparent", False)) for r in regions], bool),
         curves=bool(getattr(model, "curves", False)),
+        **_quantize_blur_map(getattr(model, "blur_map", None), width, height, xy, poly_counts, vert_counts),
     )
+
+
+def _stored_outlines(xy: np.ndarray, poly_counts: np.ndarray, vert_counts: np.ndarray) -> list:
+    """Regions as bare outlines (``.outline``, px) from the stored integer vertices."""
+    from types import SimpleNamespace
+
+    polys = _split(np.asarray(xy, np.float64) / OUTLINE_SCALE, vert_counts)
+    start = np.concatenate([[0], np.cumsum(poly_counts)]).astype(np.int64).tolist()
+    return [SimpleNamespace(outline=polys[start[r]:start[r + 1]]) for r in range(len(poly_counts))]
+
+
+def map_cells(q_or_parts, width: int, height: int, cell: int) -> np.ndarray:
+    """The blur map's stored cells for outlines ``(xy, poly_counts, vert_counts)`` as stored."""
+    from ..geometry.edgewidth import border_cells
+
+    return border_cells(_stored_outlines(*q_or_parts), width, height, cell)
+
+
+def _quantize_blur_map(bmap, width: int, height: int, xy, poly_counts, vert_counts) -> dict:
+    if bmap is None:
+        return {}
+    cell = int(bmap.cell)
+    if not 2 <= cell <= layout.MAX_MAP_CELL:
+        raise ValueError(f"blur map cell {cell} not in 2..{layout.MAX_MAP_CELL}")
+    sigma = np.asarray(bmap.sigma, np.float64)
+    if sigma.shape != (-(-height // cell), -(-width // cell)):
+        raise ValueError(f"blur map has shape {sigma.shape} for a {width}x{height} image in cells of {cell} px")
+    if not np.isfinite(sigma).all():
+        raise ValueError("blur map: non-finite value")
+    cells = map_cells((xy, poly_counts, vert_counts), width, height, cell)
+    v = np.rint(sigma.ravel()[cells] * BLUR_SCALE)
+    if np.any(v < 0) or np.any(v > MAX_BLUR):
+        raise ValueError(f"blur map: widths must be in [0, {MAX_BLUR / BLUR_SCALE}] px")
+    return {"map_cell": cell, "map_values": v.astype(np.uint8)}
+
+
+def blur_map_of(q: Quantized):
+    """The :class:`~tpsv.model.BlurMap` ``q`` stands for, or None."""
+    if q.map_values is None:
+        return None
+    from ..geometry.edgewidth import fill_map
+
+    cells = map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell)
+    return fill_map(q.width, q.height, q.map_cell, cells, q.map_values.astype(np.float32) / BLUR_SCALE)
 
 
 def mend_outlines(xy: np.ndarray, vert_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -422,6 +471,7 @@ def validate(q: Quantized) -> None:
     layout.check_header_limits(_header(q))
     _validate_regions(q)
     _validate_blur(q)
+    _validate_blur_map(q)
     _validate_features(q)
 
 
@@ -553,6 +603,16 @@ def _validate_blur(q: Quantized) -> None:
         raise TpsvFormatError(f"blur {bad[0] + 1}: region pairs not in increasing order")
 
 
+def _validate_blur_map(q: Quantized) -> None:
+    if q.map_values is None:
+        return
+    if not 2 <= q.map_cell <= layout.MAX_MAP_CELL:
+        raise TpsvFormatError(f"blur map: cell side {q.map_cell} not in 2..{layout.MAX_MAP_CELL}")
+    n = len(map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell))
+    if len(q.map_values) != n:
+        raise TpsvFormatError(f"blur map: {len(q.map_values)} widths for the {n} cells the borders pass through")
+
+
 def _validate_features(q: Quantized) -> None:
     n = q.st.shape[0]
     if int(q.feature_counts.sum()) != n:
@@ -615,7 +675,7 @@ def to_model(q: Quantized) -> Model:
         features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
         encoding={ST_BITS_KEY: q.st_bits, ST_BITS_FOR_KEY: (q.width, q.height, p["st_steps"])},
         blur=np.column_stack([q.blur[:, :2].astype(np.float64), q.blur[:, 2] / BLUR_SCALE]).reshape(-1, 3),
-        curves=bool(q.curves),
+        curves=bool(q.curves), blur_map=blur_map_of(q),
     )
 
 

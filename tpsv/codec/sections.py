@@ -144,8 +144,11 @@ def pack_regions(q: Quantized) -> bytes:
     xy = chain_xy.astype(np.int64) >> shift
     alpha = {} if q.transparent is None or not q.transparent.any() else {
         "alpha": np.packbits(q.transparent, bitorder="little").tobytes()}
+    bmap = {} if q.map_values is None else {"map_cell": int(q.map_cell),
+                                            "map": np.asarray(q.map_values, np.uint8).tobytes()}
     return _packb({
         **alpha,
+        **bmap,
         "label": list(q.labels),
         "grid": grid[:, 0].tobytes() + grid[:, 1].tobytes(),
         "polys": to_planes(q.poly_counts, 4),
@@ -287,7 +290,8 @@ def unpack_params(raw: bytes) -> dict:
 def unpack_regions(raw: bytes, h: layout.Header) -> dict:
     """Region arrays from the regions section, sized and summed against ``h``."""
     name = "regions"
-    keys = (REGION_KEYS if h.version >= 2 else REGION_KEYS_V1) + (("alpha",) if h.has_alpha else ())
+    keys = (REGION_KEYS if h.version >= 2 else REGION_KEYS_V1) + (("alpha",) if h.has_alpha else ()) \
+        + (("map_cell", "map") if h.has_blur_map else ())
     obj = _expect_map(unpack(raw, name), keys, name)
     r = h.regions
     transparent = None
@@ -358,9 +362,16 @@ def unpack_regions(raw: bytes, h: layout.Header) -> dict:
         buf = _expect_bin(obj, "blur", 9 * n, name)
         blur = np.column_stack([from_planes(buf[:4 * n], n, 4), from_planes(buf[4 * n:8 * n], n, 4),
                                 np.frombuffer(buf[8 * n:], np.uint8)]).astype(np.int64).reshape(-1, 3)
+    bmap = {}
+    if h.has_blur_map:
+        cell = _expect_int(obj, "map_cell", 2, layout.MAX_MAP_CELL, name)
+        values = obj["map"]
+        if not isinstance(values, bytes) or len(values) > -(-h.width // cell) * -(-h.height // cell):
+            raise TpsvFormatError(f"section {name}: map is not a bin of at most one byte per cell")
+        bmap = {"map_cell": cell, "map_values": np.frombuffer(values, np.uint8).copy()}
     return dict(
         labels=labels, grid=grid, poly_counts=poly_counts, vert_counts=vert_counts,
-        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid), blur=blur, transparent=transparent,
+        xy=xy, ctrl=_ctrl_unplanar(ctrl, grid), blur=blur, transparent=transparent, **bmap,
     )
 
 

@@ -89,10 +89,10 @@ import numpy as np
 from .. import codec, metrics, tps
 from ..errors import TpsvError
 from ..geometry import curves, segment
-from ..geometry.edgewidth import edge_widths
+from ..geometry.edgewidth import edge_width_map
 from ..geometry.regions import build_regions
 from ..geometry.subpixel import own_side_colours
-from ..model import Features, Model, Params, Region
+from ..model import BlurMap, Features, Model, Params, Region
 from ..rendering.pixelmap import PixelMap
 from ..rendering.raster import render, shade
 from . import search as selection
@@ -167,6 +167,8 @@ class Geometry:
         it at scale 1 (:meth:`pixel_st` fills it on first use).
     blur : ndarray (n, 3) float64
         Edge widths of the borders (``Model.blur``).
+    blur_map : BlurMap or None
+        Their widths point by point (``Model.blur_map``).
     curves : bool
         The outlines are drawn as curves (``Model.curves``: fitted outlines are, traced ones not).
     """
@@ -176,6 +178,7 @@ class Geometry:
     st: np.ndarray | None = None
     blur: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     curves: bool = False
+    blur_map: BlurMap | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def pixel_st(self, device: str = "cpu") -> np.ndarray:
@@ -221,7 +224,7 @@ class Geometry:
 
             h, w = self.index.shape
             shape = SimpleNamespace(regions=self.regions, width=w, height=h, blur=self.blur,
-                                    curves=self.curves)  # all it reads
+                                    blur_map=self.blur_map, curves=self.curves)  # all it reads
             self._cache["borders"] = DeviceBorders(shape, w, h).mix(self.index)
         return self._cache["borders"]
 
@@ -330,8 +333,8 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     if rgb is None:
         return Geometry(regions=regions, index=index)
     h, w = index.shape
-    blur = edge_widths(rgb, curves.drawn_regions(regions, w, h, curves.DRAWN_TOL), index)
-    return Geometry(regions=regions, index=index, blur=blur, curves=True)
+    blur, blur_map = edge_width_map(rgb, regions, index, drawn=curves.drawn_regions(regions, w, h, curves.DRAWN_TOL))
+    return Geometry(regions=regions, index=index, blur=blur, blur_map=blur_map, curves=True)
 
 
 def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted",
@@ -470,7 +473,7 @@ def make_model(
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
     model = Model(width=w, height=h, regions=geometry.regions, features=feats, params=params, blur=geometry.blur,
-                  curves=geometry.curves)
+                  curves=geometry.curves, blur_map=geometry.blur_map)
     return fit_model(rgb, geometry, model, fit_sub, fit_iterations) if fit else model
 
 

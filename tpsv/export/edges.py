@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..rendering.borders import blur_at
+
 #: Ring offsets across a soft edge, in units of its sigma, outward (Phi(-k) at ring k).
 RINGS = np.linspace(-3.0, 3.0, 13)
 #: Largest turn of the ring normal between two rows of a ribbon (radians): joins at corners are round.
@@ -65,7 +67,8 @@ def edge_sigmas(model) -> tuple[list[list[np.ndarray]], list[list[np.ndarray]]]:
     Returns
     -------
     sigmas : list of list of ndarray (k,) float64
-        Edge width (source px, 0: sharp).
+        Edge width (source px, 0: sharp): the pair's, or with a blur map
+        (``Model.blur_map``) the map's at the edge's middle.
     across : list of list of ndarray (k,) int64
         Region across the edge (-1: none, the image frame or a gap).
     """
@@ -96,7 +99,13 @@ def edge_sigmas(model) -> tuple[list[list[np.ndarray]], list[list[np.ndarray]]]:
     across[order[i + 1]] = rr[i]
     sigma = np.zeros(len(reg))
     blur = np.asarray(model.blur, np.float64).reshape(-1, 3)
-    if blur.size and R:
+    bmap = getattr(model, "blur_map", None)
+    if bmap is not None:
+        # the map's width at each edge's middle (the renderer's at every point of it)
+        mid = 0.5 * (a + b)
+        grid = (np.asarray(bmap.sigma, np.float64), float(bmap.cell), float(bmap.cell))
+        sigma = np.where(across >= 0, np.maximum(blur_at(grid, mid[:, 0], mid[:, 1]), 0.0), 0.0)
+    elif blur.size and R:
         # look the pair (a < b) up in the sorted keys a * R + b of the blur table
         bk = blur[:, 0].astype(np.int64) * R + blur[:, 1].astype(np.int64)
         order_b = np.argsort(bk)

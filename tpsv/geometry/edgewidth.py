@@ -18,12 +18,20 @@ outline does not follow; the label map alone places both, to about half a
 pixel. Rendered sharp, magnification would show a cut-out edge where the
 photo has none (a label map drawn a pixel off a soft nose, at 4x), so both
 get at least :data:`UNSURE_SIGMA`.
+
+One width per pair cannot suit a border that follows an edge in one stretch
+and cuts across a flat area in the next; magnified, the flat stretch shows a
+seam. :func:`edge_width_map` also gives each border point a width of its
+own, gathered in a coarse map (``Model.blur_map``) that the renderer samples
+where each border pixel's border is.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+
+from ..model import BlurMap
 
 #: Distance (px) from the border at which each side's colour is read.
 PROBE = 4.0
@@ -48,6 +56,19 @@ UNSURE_SIGMA = 0.5
 #: rules, the same 4x figures went from 26.3/22.2/22.6/21.3 dB to 27.4/22.2/22.6/21.8 (2x downscale and
 #: back: 29.8/24.7/26.1/25.9 -> 30.9/25.0/26.4/25.9).
 MISPLACED = 0.7
+#: Least edge width (px) where a border crosses a flat stretch of the photo (both sides read, no step): a
+#: label map cut there, and a sharp step, magnified, shows a seam where the two regions' colours meet (the
+#: detail layer evens them out pixel by pixel at scale 1, not between the pixels). Measured on the samples
+#: area-downscaled 4x, vectorised at quality 75 and rendered at 4x, PSNR within 4 px of the borders
+#: (astronaut, chelsea, coffee, rocket): widths per pair 22.39/27.70/22.80/22.20 dB; this rule with 1.5 px
+#: 22.57/28.11/23.18/22.31 (with 1 px about the same; with 2 px and 4 px cells 22.57/27.82/23.03/22.51).
+FLAT_SIGMA = 1.5
+#: Cell side (px) of the blur map (:func:`edge_width_map`). 4 px cells cost about twice the bytes (70-200 B a
+#: sample, 8 px cells 60-130) and were no better on the whole: 22.62/27.73/22.99/22.50 dB (with 1 px).
+MAP_CELL = 8
+#: Steps per px of the blur map's widths (coarser than the format's 1/16 px: fewer symbols, about 30 % fewer
+#: bytes).
+MAP_STEPS = 4
 
 
 def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -105,10 +126,19 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
         Rows ``(a, b, sigma)``, ``a < b`` sorted, ``sigma`` in px on the
         1/16 px grid; only borders with ``sigma > 0``.
     """
+    r = _readings(rgb, regions, index)
+    if r is None:
+        return np.zeros((0, 3))
+    return _pair_widths(r, len(regions))
+
+
+def _readings(rgb: np.ndarray, regions, index: np.ndarray):
+    """The readings at points every pixel along the shared borders (module doc), or None without borders:
+    ``(f, a, b, ok, placed, sigma_eff, offset)``."""
     rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
     edges = _shared_edges(regions)
     if not edges:
-        return np.zeros((0, 3))
+        return None
     grad = np.zeros(rgb.shape[:2])
     for k in range(3):
         channel = rgb[..., k].astype(np.float64)
@@ -155,8 +185,14 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
     placed = ok.copy()  # both sides readable where they should be
     ok &= (contrast >= MIN_CONTRAST) & (g > 1e-6)
     sigma_eff = contrast / (np.sqrt(2.0 * np.pi) * np.maximum(g, 1e-6))
+    return f, a, b, ok, placed, sigma_eff, offset
+
+
+def _pair_widths(readings, n_regions: int) -> np.ndarray:
+    """:func:`edge_widths` from the :func:`_readings`: one width per pair of regions."""
+    f, a, b, ok, placed, sigma_eff, offset = readings
     out = []
-    key = a * (len(regions) + 1) + b
+    key = a * (n_regions + 1) + b
     for k in np.unique(key):
         mine = key == k
         s = sigma_eff[ok & mine]
@@ -170,10 +206,143 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
             continue  # too short to tell: sharp
         if sigma < MIN_SIGMA:
             continue
-        ra, rb = divmod(int(k), len(regions) + 1)
+        ra, rb = divmod(int(k), n_regions + 1)
         out.append((ra, rb, np.round(min(sigma, MAX_SIGMA) * 16) / 16))
     return np.array(out, np.float64).reshape(-1, 3)
 
 
-__all__ = ["MAX_SIGMA", "MIN_CONTRAST", "MIN_POINTS", "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA",
-           "edge_widths"]
+def border_cells(regions, width: int, height: int, cell: int = MAP_CELL) -> np.ndarray:
+    """Flat indices (sorted) of the blur map's cells that a shared border passes through.
+
+    From the outlines as stored (vertices on the format's grid, so a decoder
+    finds the same cells): points every half pixel along each shared edge.
+
+    Returns
+    -------
+    ndarray (k,) int64
+        ``row * gw + column`` in a ``ceil(height / cell) x ceil(width / cell)`` grid.
+    """
+    gh, gw = -(-int(height) // cell), -(-int(width) // cell)
+    edges = _shared_edges(regions)
+    if not edges:
+        return np.zeros(0, np.int64)
+    p0 = np.array([e[2] for e in edges], np.float64)
+    p1 = np.array([e[3] for e in edges], np.float64)
+    n = np.maximum(1, np.ceil(2.0 * np.hypot(*(p1 - p0).T))).astype(np.int64)
+    which = np.repeat(np.arange(len(edges)), n + 1)
+    t = (np.arange(int((n + 1).sum())) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)) / n[which]
+    pts = p0[which] + t[:, None] * (p1 - p0)[which]
+    i = np.clip(np.floor(pts[:, 1] / cell).astype(np.int64), 0, gh - 1)
+    j = np.clip(np.floor(pts[:, 0] / cell).astype(np.int64), 0, gw - 1)
+    return np.unique(i * gw + j)
+
+
+#: Rings of cells around the stored ones that :func:`fill_map` fills: a border pixel's width is sampled
+#: bilinearly at its border point, within a pixel of the stored outline, so it reads cells at most two
+#: cells from a stored one.
+FILL_RINGS = 2
+
+
+def fill_map(width: int, height: int, cell: int, cells: np.ndarray, values: np.ndarray) -> BlurMap:
+    """The :class:`~tpsv.model.BlurMap` whose ``cells`` hold ``values`` (px).
+
+    The other cells within :data:`FILL_RINGS` cells of them get, ring by
+    ring, the mean (float64, then float32) of their 8-neighbours filled
+    before; the rest 0 (never read).
+    """
+    gh, gw = -(-int(height) // cell), -(-int(width) // cell)
+    grid = np.zeros((gh + 2, gw + 2), np.float64)  # a frame of unfilled cells: no wrap-around
+    have = np.zeros((gh + 2, gw + 2), bool)
+    i, j = np.divmod(np.asarray(cells, np.int64), gw)
+    grid[i + 1, j + 1] = np.asarray(values, np.float32)
+    have[i + 1, j + 1] = True
+    for _ in range(FILL_RINGS):
+        total = np.zeros((gh, gw))
+        count = np.zeros((gh, gw))
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                if di or dj:
+                    total += np.where(have, grid, 0.0)[1 + di:gh + 1 + di, 1 + dj:gw + 1 + dj]
+                    count += have[1 + di:gh + 1 + di, 1 + dj:gw + 1 + dj]
+        new = ~have[1:-1, 1:-1] & (count > 0)
+        inner = grid[1:-1, 1:-1]
+        inner[new] = (total[new] / count[new]).astype(np.float32)
+        have[1:-1, 1:-1] |= new
+    return BlurMap(cell=int(cell), sigma=grid[1:-1, 1:-1].astype(np.float32))
+
+
+def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell: int = MAP_CELL):
+    """The edge widths of the shared borders, per pair and point by point.
+
+    Each reading point gets a width of its own, never below its pair's
+    (:func:`edge_widths`): a step it reads, that step's width (at least
+    :data:`UNSURE_SIGMA` where the photo's strongest gradient lies more than
+    :data:`MISPLACED` from the outline); both sides readable but no step,
+    :data:`FLAT_SIGMA` (the border crosses a flat area: a label map cut
+    there); neither, its pair's width. A cell of the map gets the median of
+    the points in it and its 8 neighbours, in steps of 1 / :data:`MAP_STEPS` px.
+
+    Parameters
+    ----------
+    rgb, index : as :func:`edge_widths`
+    regions : list of Region
+        As stored: the map's cells are where their shared borders pass (:func:`border_cells`).
+    drawn : list of Region, optional
+        The same regions with their outlines as drawn (the readings are taken
+        along them); default ``regions``.
+    cell : int
+        Cell side of the map, px.
+
+    Returns
+    -------
+    blur : ndarray (n, 3)
+        :func:`edge_widths`.
+    blur_map : BlurMap or None
+        None without shared borders.
+    """
+    h, w = index.shape
+    r = _readings(rgb, regions if drawn is None else drawn, index)
+    if r is None:
+        return np.zeros((0, 3)), None
+    pair = _pair_widths(r, len(regions))
+    f, a, b, ok, placed, sigma_eff, offset = r
+    n_reg = len(regions) + 1
+    # each point's width; unreadable points take their pair's
+    default = dict(zip((pair[:, 0] * n_reg + pair[:, 1]).astype(np.int64).tolist(), pair[:, 2].tolist()))
+    pair_sigma = np.array([default.get(int(k), 0.0) for k in (a * n_reg + b)], np.float64)
+    sp = pair_sigma.copy()
+    sp[placed & ~ok] = FLAT_SIGMA
+    step = np.sqrt(np.maximum(sigma_eff[ok] ** 2 - S0 ** 2, 0.0))
+    step = np.where(np.abs(offset[ok]) > MISPLACED, np.maximum(step, UNSURE_SIGMA), step)
+    sp[ok] = step
+    # never narrower than the pair's: one point's reading is noisy, and where a stretch reads sharp the
+    # pair's rules (an outline off the photo's edge somewhere along it) still hold
+    sp = np.maximum(sp, pair_sigma)
+    gh, gw = -(-h // cell), -(-w // cell)
+    ci = np.clip(np.floor(f[:, 1] / cell).astype(np.int64), 0, gh - 1)
+    cj = np.clip(np.floor(f[:, 0] / cell).astype(np.int64), 0, gw - 1)
+    cells = border_cells(regions, w, h, cell)
+    values = np.zeros(len(cells), np.float32)
+    if len(cells):
+        # the points of each cell, then of each cell's 3 x 3 block
+        key = ci * gw + cj
+        order = np.argsort(key, kind="stable")
+        ks, vs = key[order], sp[order]
+        for n, c in enumerate(cells.tolist()):
+            i, j = divmod(c, gw)
+            block = []
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    if 0 <= i + di < gh and 0 <= j + dj < gw:
+                        k = (i + di) * gw + j + dj
+                        lo, hi = np.searchsorted(ks, [k, k + 1])
+                        block.append(vs[lo:hi])
+            pts = np.concatenate(block)
+            v = float(np.median(pts)) if pts.size else 0.0
+            values[n] = 0.0 if v < MIN_SIGMA else np.round(min(v, MAX_SIGMA) * MAP_STEPS) / MAP_STEPS
+    return pair, fill_map(w, h, cell, cells, values)
+
+
+__all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_SIGMA", "MIN_CONTRAST", "MIN_POINTS",
+           "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA", "border_cells", "edge_width_map", "edge_widths",
+           "fill_map"]

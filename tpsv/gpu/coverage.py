@@ -53,7 +53,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import BorderMix, Borders, edge_widths
+from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -114,6 +114,12 @@ class PieceGrid:
     sigma : wp.array (m,) float64
         Their edge widths, output pixels.
     n_regions : int
+    bmap : wp.array2d float64
+        The blur map's widths, output px (a 1 x 1 placeholder without one).
+    bcw, bch : float
+        Its cell width and height, output px.
+    has_map : int
+        1 where the blur map, not the pairs, gives the widths.
     """
 
     a: object
@@ -132,6 +138,10 @@ class PieceGrid:
     keys: object
     sigma: object
     n_regions: int
+    bmap: object = None
+    bcw: float = 1.0
+    bch: float = 1.0
+    has_map: int = 0
 
     def search(self) -> list:
         """The arguments of :func:`_nearest`, in its order."""
@@ -287,6 +297,25 @@ def _sigma(keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_
 
 
 @wp.func
+def _blur_at(bmap: wp.array2d(dtype=wp.float64), cw: wp.float64, ch: wp.float64, x: wp.float64, y: wp.float64):
+    """Bilinear sample of the blur map at output point ``(x, y)`` (``borders.blur_at``)."""
+    gh = bmap.shape[0]
+    gw = bmap.shape[1]
+    u = wp.clamp(x / cw - wp.float64(0.5), wp.float64(0.0), wp.float64(gw - 1))
+    v = wp.clamp(y / ch - wp.float64(0.5), wp.float64(0.0), wp.float64(gh - 1))
+    i0 = wp.min(int(wp.floor(v)), wp.max(gh - 2, 0))
+    j0 = wp.min(int(wp.floor(u)), wp.max(gw - 2, 0))
+    i1 = wp.min(i0 + 1, gh - 1)
+    j1 = wp.min(j0 + 1, gw - 1)
+    fv = v - wp.float64(i0)
+    fu = u - wp.float64(j0)
+    one = wp.float64(1.0)
+    top = bmap[i0, j0] * (one - fu) + bmap[i0, j1] * fu
+    bottom = bmap[i1, j0] * (one - fu) + bmap[i1, j1] * fu
+    return top * (one - fv) + bottom * fv
+
+
+@wp.func
 def _F(x: wp.float64, s: wp.float64):
     """``x Phi(x / s) + s phi(x / s)``: the integral of the Gaussian-blurred unit step."""
     z = x / s
@@ -408,6 +437,7 @@ def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), off
 def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
              keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
+             bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
              keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32)):
     """Each candidate: nearest piece, region across, coverage; ``keep`` 1 where it mixes."""
@@ -426,7 +456,12 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
         py = wp.float64(y) + wp.float64(0.5)
         o = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
         if o >= 0:
-            s = _coverage(dist, _sigma(keys, sigma, n_regions, mine, o))
+            w = wp.float64(0.0)
+            if has_map != 0:
+                w = _blur_at(bmap, bcw, bch, fx, fy)
+            else:
+                w = _sigma(keys, sigma, n_regions, mine, o)
+            s = _coverage(dist, w)
             if s < _MIXED:
                 keep[i] = 1
                 other[i] = o
@@ -547,8 +582,13 @@ class DeviceBorders:
         self.ky = self.height / float(model.height)
         nr = max(len(model.regions), 1)
         keys, sigma = edge_widths(model, self.kx, self.ky)
+        bmap = blur_map(model, self.kx, self.ky)
+        wide = float(sigma.max(initial=0.0))
+        if bmap is not None:
+            # any border may be as wide as the map's widest point
+            wide = max(wide, float(bmap[0].max(initial=0.0)))
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
-        self.reach_px = 0.5 + 3.0 * float(sigma.max(initial=0.0))
+        self.reach_px = 0.5 + 3.0 * wide
         self.halo = int(np.ceil(self.reach_px)) + 1
         pieces = DevicePieces(model, self.width, self.height, self.device)
         self._host = None
@@ -582,14 +622,21 @@ class DeviceBorders:
         dev = self.device
         keys_d = wp.array(keys, dtype=wp.int64, device=dev)
         sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
-        widest = wp.zeros(nr, dtype=wp.float64, device=dev)
-        if len(keys):
-            wp.launch(_widest, dim=len(keys), inputs=[keys_d, sigma_d, nr, widest], device=dev)
+        if bmap is not None:
+            widest = wp.array(np.full(nr, wide), dtype=wp.float64, device=dev)
+        else:
+            widest = wp.zeros(nr, dtype=wp.float64, device=dev)
+            if len(keys):
+                wp.launch(_widest, dim=len(keys), inputs=[keys_d, sigma_d, nr, widest], device=dev)
         limit = wp.empty(nr, dtype=wp.float64, device=dev)
         wp.launch(_limit, dim=nr, inputs=[widest, wp.float64(self.reach_px), limit], device=dev)
         self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, gw=gw, gh=gh, cell=cell, aw=aw,
                               acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
-                              blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr)
+                              blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,
+                              bmap=wp.array(np.zeros((1, 1)) if bmap is None else bmap[0], dtype=wp.float64,
+                                            device=dev),
+                              bcw=1.0 if bmap is None else float(bmap[1]), bch=1.0 if bmap is None else float(bmap[2]),
+                              has_map=int(bmap is not None))
         self.cell = cell
         self.grid_shape = (gh, gw)
 
@@ -702,7 +749,8 @@ class DeviceBorders:
         alpha = wp.empty(nc, dtype=wp.float32, device=dev)
 
         def launch_measure(i0, i1):
-            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.keys, g.sigma, g.n_regions, index_d, iy0, a,
+            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.keys, g.sigma, g.n_regions, g.bmap,
+                                                     wp.float64(g.bcw), wp.float64(g.bch), g.has_map, index_d, iy0, a,
                                                      cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1]], device=dev)
 
         _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)

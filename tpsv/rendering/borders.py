@@ -21,7 +21,9 @@ defocused edge, source pixels) is a blurred step: ``alpha`` is the box
 filter of the step convolved with that Gaussian (``sigma`` times the scale,
 in output pixels), and pixels up to ``0.5 + 3 sigma`` output pixels from the
 border mix. A soft edge stays as soft, relative to the picture, at any scale;
-a sharp one stays one output pixel wide.
+a sharp one stays one output pixel wide. A model with a blur map
+(``Model.blur_map``) has a width per point of its borders instead: the map's
+bilinear sample at the border point nearest the pixel (:func:`blur_at`).
 
 Outlines are cut into pieces of at most :data:`PIECE_PX` output pixels
 (longer when an output would need more than :data:`MAX_PIECES`), whose
@@ -93,6 +95,31 @@ def edge_widths(model, kx: float, ky: float) -> tuple[np.ndarray, np.ndarray]:
     n = max(len(model.regions), 1)
     order = np.argsort(blur[:, 0] * n + blur[:, 1], kind="stable")
     return (blur[order, 0] * n + blur[order, 1]).astype(np.int64), blur[order, 2] * float(np.sqrt(kx * ky))
+
+
+def blur_map(model, kx: float, ky: float):
+    """The model's :class:`~tpsv.model.BlurMap` as ``(sigma in output px, cell width, cell height in
+    output px)``, or None."""
+    bm = getattr(model, "blur_map", None)
+    if bm is None:
+        return None
+    return (np.asarray(bm.sigma, np.float64) * float(np.sqrt(kx * ky)), bm.cell * kx, bm.cell * ky)
+
+
+def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear sample of a :func:`blur_map` at output points ``(x, y)`` (cell centres at half cells, edges
+    clamped): the edge width there, output px."""
+    sigma, cw, ch = bmap
+    gh, gw = sigma.shape
+    u = np.clip(np.asarray(x, np.float64) / cw - 0.5, 0.0, gw - 1)
+    v = np.clip(np.asarray(y, np.float64) / ch - 0.5, 0.0, gh - 1)
+    i0 = np.minimum(np.floor(v).astype(np.int64), max(gh - 2, 0))
+    j0 = np.minimum(np.floor(u).astype(np.int64), max(gw - 2, 0))
+    i1, j1 = np.minimum(i0 + 1, gh - 1), np.minimum(j0 + 1, gw - 1)
+    fv, fu = v - i0, u - j0
+    top = sigma[i0, j0] * (1 - fu) + sigma[i0, j1] * fu
+    bottom = sigma[i1, j0] * (1 - fu) + sigma[i1, j1] * fu
+    return top * (1 - fv) + bottom * fv
 
 
 def outline_pieces(model, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -175,8 +202,12 @@ class Borders:
         self.ky = self.height / float(model.height)
         self.n_regions = max(len(model.regions), 1)
         self.blur_keys, self.blur_sigma = edge_widths(model, self.kx, self.ky)
+        self.blur_map = blur_map(model, self.kx, self.ky)
+        widest = float(self.blur_sigma.max(initial=0.0))
+        if self.blur_map is not None:
+            widest = max(widest, float(self.blur_map[0].max(initial=0.0)))
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
-        self.reach_px = 0.5 + 3.0 * float(self.blur_sigma.max(initial=0.0))
+        self.reach_px = 0.5 + 3.0 * widest
         self.halo = int(np.ceil(self.reach_px)) + 1
         self.a, self.d = outline_pieces(model, self.width, self.height)
         self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
@@ -246,7 +277,7 @@ class Borders:
         other = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
         ok = other >= 0
         p, dmin, ys, xs, other, mine = p[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
-        alpha = self._coverage(dmin, self._sigma(mine, other))
+        alpha = self._coverage(dmin, self._sigma(mine, other, f))
         mixed = alpha < 1.0 - 1e-4
         p, alpha, ys, xs, other = p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed]
         xy = np.column_stack([p[:, 0] / self.kx, p[:, 1] / self.ky])
@@ -271,8 +302,11 @@ class Borders:
         rows = np.arange(len(p))
         return p, foot[rows, best], dist[rows, best]
 
-    def _sigma(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Edge width (output px) of the border between regions ``a`` and ``b`` (0: sharp)."""
+    def _sigma(self, a: np.ndarray, b: np.ndarray, foot: np.ndarray) -> np.ndarray:
+        """Edge width (output px) of the border between regions ``a`` and ``b`` at its points ``foot``
+        (n, 2) (0: sharp): the blur map's there, else the pair's."""
+        if self.blur_map is not None:
+            return blur_at(self.blur_map, foot[:, 0], foot[:, 1])
         if self.blur_keys.size == 0:
             return np.zeros(a.shape)
         key = np.minimum(a, b).astype(np.int64) * self.n_regions + np.maximum(a, b)

@@ -1,0 +1,183 @@
+"""The blur map: an edge width per point of the borders (format version 7)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tests.test_codec import assert_models_identical, grid_ctrl, patch_header, reject, with_quantized
+from tpsv import codec
+from tpsv.codec import layout, quant
+from tpsv.encode.vectorize import build_geometry
+from tpsv.geometry.edgewidth import FLAT_SIGMA, MAP_CELL, border_cells, fill_map
+from tpsv.gpu.coverage import DeviceBorders
+from tpsv.model import BlurMap, Features, Model, Patch, Region
+from tpsv.rendering.borders import Borders, blur_at
+from tpsv.rendering.pixelmap import region_index
+
+
+def halves(width: int = 32, height: int = 32) -> Model:
+    """Two regions meeting along ``x = width / 2``, no features."""
+    h = width / 2
+    regions = [
+        Region(label=0, outline=[np.array([[0, 0], [h, 0], [h, height], [0, height]], np.float64)],
+               patch=Patch(grid_ctrl(2, 2, 0, 0, h, height))),
+        Region(label=1, outline=[np.array([[h, 0], [width, 0], [width, height], [h, height]], np.float64)],
+               patch=Patch(grid_ctrl(2, 2, h, 0, h, height))),
+    ]
+    return Model(width=width, height=height, regions=regions, features=Features.empty())
+
+
+def with_map(model: Model, top: float, bottom: float, cell: int = 4) -> Model:
+    """``model`` with a blur map of width ``top`` over its upper half and ``bottom`` over its lower half."""
+    gh, gw = -(-model.height // cell), -(-model.width // cell)
+    sigma = np.full((gh, gw), top, np.float32)
+    sigma[gh // 2:] = bottom
+    return dataclasses.replace(model, blur_map=BlurMap(cell=cell, sigma=sigma))
+
+
+def test_border_cells_follow_the_shared_border_only():
+    m = halves()
+    cells = border_cells(m.regions, m.width, m.height, 4)
+    gw = 8
+    # x = 16 lies on the line between cell columns 3 and 4: the points fall in column 4 (floor)
+    assert sorted(cells.tolist()) == [i * gw + 4 for i in range(8)]
+    # frame edges are no border
+    assert border_cells(m.regions[:1], m.width, m.height, 4).size == 0
+
+
+def test_fill_map_fills_two_rings_around_the_stored_cells():
+    bm = fill_map(16, 8, 4, np.array([0, 3]), np.array([1.0, 2.0], np.float32))
+    assert bm.sigma.shape == (2, 4) and bm.sigma.dtype == np.float32
+    assert bm.sigma.tolist() == [[1.0, 1.0, 2.0, 2.0], [1.0, 1.0, 2.0, 2.0]]
+    # a cell between two stored ones takes their mean; beyond two rings nothing is read: 0
+    assert fill_map(12, 4, 4, np.array([0, 2]), np.array([1.0, 2.0])).sigma.tolist() == [[1.0, 1.5, 2.0]]
+    assert fill_map(32, 4, 4, np.array([0]), np.array([1.0])).sigma.tolist() == [[1.0, 1.0, 1.0] + [0.0] * 5]
+
+
+def test_blur_at_is_bilinear_between_cell_centres():
+    bmap = (np.array([[0.0, 4.0]]), 2.0, 2.0)
+    assert blur_at(bmap, np.array([1.0, 2.0, 3.0, 0.0, 9.0]), np.zeros(5)).tolist() == [0.0, 2.0, 4.0, 0.0, 4.0]
+
+
+def test_a_flat_stretch_is_blurred_and_a_step_keeps_its_width():
+    """A label map cuts the picture in two: along the left half the cut follows a red/green step, along
+    the right half it crosses a flat grey area. The map is wide over the flat stretch only."""
+    n = 64
+    rgb = np.empty((n, n, 3), np.float32)
+    rgb[:32, :32] = (0.8, 0.1, 0.1)
+    rgb[32:, :32] = (0.1, 0.7, 0.2)
+    rgb[:, 32:] = 0.5
+    labels = np.zeros((n, n), np.int32)
+    labels[32:] = 1
+    g = build_geometry(labels, rgb)
+    assert g.blur_map is not None and g.blur_map.cell == MAP_CELL
+    bmap = (np.asarray(g.blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL))
+    step = blur_at(bmap, np.array([8.0, 16.0]), np.array([32.0, 32.0]))
+    flat = blur_at(bmap, np.array([48.0, 56.0]), np.array([32.0, 32.0]))
+    assert (step < 0.5).all(), step
+    assert (flat >= FLAT_SIGMA).all(), flat
+
+
+def test_the_renderer_follows_the_map_along_one_border():
+    """One border, sharp over its upper half and 2 px wide over its lower half: at 8x the upper rows mix
+    about one pixel, the lower ones many; host and device agree."""
+    m = with_map(halves(), 0.0, 2.0)
+    W = H = 256
+    index = region_index(m, W, H)
+    host = Borders(m, W, H).mix(index)
+    dev = DeviceBorders(m, W, H).mix(index)
+    order = np.argsort(host.pixels)  # (the host lists the pixels next to a border first)
+    assert np.array_equal(host.pixels[order], dev.pixels) and np.array_equal(host.other[order], dev.other)
+    assert np.abs(host.alpha[order] - dev.alpha).max() < 1e-5
+    rows = host.pixels // W
+    mixed_per_row = np.bincount(rows, minlength=H)
+    assert mixed_per_row[:96].max() <= 2  # sharp: the one pixel each side of x = 128
+    assert mixed_per_row[160:].min() >= 40  # 2 px at 8x: 16 output px; three of them each side
+    # the width changes along the border, not as a step: rows around the middle go in between
+    middle = mixed_per_row[112:144]
+    assert np.all(np.diff(middle) >= 0) and middle[0] < middle[-1]
+
+
+def test_without_a_map_the_pairs_widths_hold():
+    m = dataclasses.replace(halves(), blur=np.array([[0.0, 1.0, 2.0]]))
+    W = H = 256
+    index = region_index(m, W, H)
+    even = with_map(halves(), 2.0, 2.0)
+    a, b = Borders(m, W, H).mix(index), Borders(even, W, H).mix(index)
+    assert np.array_equal(a.pixels, b.pixels) and np.abs(a.alpha - b.alpha).max() < 1e-6
+
+
+def test_blur_map_round_trips_exactly():
+    m = with_map(halves(), 0.5, 1.25)
+    data = codec.encode(m)
+    h = layout.parse_header(data)
+    assert h.version == 7 and h.has_blur_map
+    back = codec.decode(data)
+    assert_models_identical(codec.quantize(m), back)
+    # the cells along the border as they were, two rings around them filled, no more
+    assert np.array_equal(back.blur_map.sigma[:, 4], m.blur_map.sigma[:, 4])
+    assert back.blur_map.sigma[:, 2:7].min() >= 0.5 and back.blur_map.sigma[:, [0, 1, 7]].max() == 0
+    assert codec.encode(back) == data
+    # a model without a map writes no flag
+    assert not layout.parse_header(codec.encode(halves())).has_blur_map
+
+
+def test_only_the_border_cells_are_stored():
+    m = with_map(halves(), 0.5, 1.25)
+    q = quant.from_model(m)
+    assert q.map_cell == 4 and len(q.map_values) == 8
+    assert q.map_values.tolist() == [8] * 4 + [20] * 4
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(map_values=np.zeros(3, np.uint8)), "blur map: 3 widths for the 8 cells"),
+    (dict(map_values=np.zeros(9, np.uint8)), "blur map: 9 widths for the 8 cells"),
+    (dict(map_cell=1), "map_cell = 1 not in 2..64"),
+    (dict(map_cell=65), "map_cell = 65 not in 2..64"),
+])
+def test_hostile_blur_maps_are_refused(change, message):
+    reject(with_quantized(with_map(halves(), 0.5, 1.25), **change), message)
+
+
+def test_a_map_without_its_flag_or_a_flag_without_its_map_is_refused():
+    data = codec.encode(with_map(halves(), 0.5, 1.25))
+    reject(patch_header(data, flags=layout.parse_header(data).flags & ~layout.FLAG_BLUR_MAP), "unknown key")
+    plain = codec.encode(halves())
+    reject(patch_header(plain, flags=layout.parse_header(plain).flags | layout.FLAG_BLUR_MAP), "missing key")
+    reject(patch_header(data, version=6), "unsupported flags")
+
+
+def test_a_border_moved_off_the_map_reads_its_new_cells():
+    """An edit that moves outlines keeps the map: the stored cells are those the borders pass through
+    now, and the file holds the map's widths there."""
+    m = with_map(halves(), 0.5, 1.25)
+    moved = dataclasses.replace(m, regions=[
+        dataclasses.replace(r, outline=[p + [4.0, 0.0] * (p[:, 0:1] > 0) * (p[:, 0:1] < 32)])
+        for r in m.regions for p in r.outline[:1]
+    ])
+    back = codec.decode(codec.encode(moved))
+    assert back.blur_map.sigma.shape == m.blur_map.sigma.shape
+    assert back.blur_map.sigma[:4, 5].tolist() == [0.5] * 4 and back.blur_map.sigma[4:, 5].tolist() == [1.25] * 4
+    # no shared border at all: nothing stored, the map decodes to zeros
+    apart = dataclasses.replace(m, regions=m.regions[:1])
+    assert len(quant.from_model(apart).map_values) == 0
+    assert not codec.decode(codec.encode(apart)).blur_map.sigma.any()
+
+
+def test_info_reports_the_map(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from tpsv.cli import main
+
+    path = tmp_path / "m.tpsv"
+    path.write_bytes(codec.encode(with_map(halves(), 0.5, 1.25)))
+    r = CliRunner().invoke(main, ["info", "--json", str(path)])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["blur_map"] == {"cell": 4, "cells": 8, "min": 0.5, "max": 1.25}
+    r = CliRunner().invoke(main, ["info", str(path)])
+    assert "blur map  8 cells of 4 px along the borders, edge width 0.5-1.25 px" in r.stdout
