@@ -181,3 +181,27 @@ def test_info_reports_the_map(tmp_path):
     assert json.loads(r.stdout)["blur_map"] == {"cell": 4, "cells": 8, "min": 0.5, "max": 1.25}
     r = CliRunner().invoke(main, ["info", str(path)])
     assert "blur map  8 cells of 4 px along the borders, edge width 0.5-1.25 px" in r.stdout
+
+
+def test_borders_are_clipped_to_the_picture():
+    """A shared edge running far outside the picture marks only the cells it crosses inside it."""
+    m = halves()
+    far = [dataclasses.replace(r, outline=[np.where(r.outline[0] == 32.0, 32.0, r.outline[0])
+                                           + np.where(r.outline[0][:, 1:] == 32.0, [0.0, 1e6], 0.0)])
+           for r in m.regions]
+    cells = border_cells(far, m.width, m.height, 4)
+    assert sorted(cells.tolist()) == [i * 8 + 4 for i in range(8)]
+
+
+def test_borders_too_long_to_map_are_refused(monkeypatch):
+    from tpsv.geometry import edgewidth
+
+    data = codec.encode(with_map(halves(), 0.5, 1.25))
+    monkeypatch.setattr(edgewidth, "MAX_MAP_POINTS", 10)
+    reject(data, "blur map: the borders need 65 points to map, more than 10")
+    # the encoder then keeps one width per pair
+    n = 64
+    rgb = np.full((n, n, 3), 0.5, np.float32)
+    labels = np.zeros((n, n), np.int32)
+    labels[32:] = 1
+    assert build_geometry(labels, rgb).blur_map is None

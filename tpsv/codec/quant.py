@@ -219,11 +219,12 @@ def _stored_outlines(xy: np.ndarray, poly_counts: np.ndarray, vert_counts: np.nd
     return [SimpleNamespace(outline=polys[start[r]:start[r + 1]]) for r in range(len(poly_counts))]
 
 
-def map_cells(q_or_parts, width: int, height: int, cell: int) -> np.ndarray:
-    """The blur map's stored cells for outlines ``(xy, poly_counts, vert_counts)`` as stored."""
+def map_cells(outlines: tuple, width: int, height: int, cell: int) -> np.ndarray:
+    """The blur map's stored cells for outlines ``(xy, poly_counts, vert_counts)`` as stored
+    (:func:`tpsv.geometry.edgewidth.border_cells`; ValueError when the borders are too long to map)."""
     from ..geometry.edgewidth import border_cells
 
-    return border_cells(_stored_outlines(*q_or_parts), width, height, cell)
+    return border_cells(_stored_outlines(*outlines), width, height, cell)
 
 
 def _quantize_blur_map(bmap, width: int, height: int, xy, poly_counts, vert_counts) -> dict:
@@ -608,7 +609,10 @@ def _validate_blur_map(q: Quantized) -> None:
         return
     if not 2 <= q.map_cell <= layout.MAX_MAP_CELL:
         raise TpsvFormatError(f"blur map: cell side {q.map_cell} not in 2..{layout.MAX_MAP_CELL}")
-    n = len(map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell))
+    try:
+        n = len(map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell))
+    except ValueError as exc:
+        raise TpsvFormatError(f"blur map: {exc}") from None
     if len(q.map_values) != n:
         raise TpsvFormatError(f"blur map: {len(q.map_values)} widths for the {n} cells the borders pass through")
 

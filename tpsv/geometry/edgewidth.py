@@ -211,30 +211,60 @@ def _pair_widths(readings, n_regions: int) -> np.ndarray:
     return np.array(out, np.float64).reshape(-1, 3)
 
 
+#: Most points :func:`border_cells` samples (a hostile file's borders could be far longer than any picture's:
+#: 12 megapixels with fine automatic regions make about a million).
+MAX_MAP_POINTS = 1 << 24
+
+
 def border_cells(regions, width: int, height: int, cell: int = MAP_CELL) -> np.ndarray:
     """Flat indices (sorted) of the blur map's cells that a shared border passes through.
 
     From the outlines as stored (vertices on the format's grid, so a decoder
-    finds the same cells): points every half pixel along each shared edge.
+    finds the same cells): each shared edge clipped to the picture, points
+    every half pixel along it (docs/FORMAT.md, "Blur map").
 
     Returns
     -------
     ndarray (k,) int64
         ``row * gw + column`` in a ``ceil(height / cell) x ceil(width / cell)`` grid.
+
+    Raises
+    ------
+    ValueError
+        The borders would need more than :data:`MAX_MAP_POINTS` points.
     """
     gh, gw = -(-int(height) // cell), -(-int(width) // cell)
     edges = _shared_edges(regions)
     if not edges:
         return np.zeros(0, np.int64)
     p0 = np.array([e[2] for e in edges], np.float64)
-    p1 = np.array([e[3] for e in edges], np.float64)
-    n = np.maximum(1, np.ceil(2.0 * np.hypot(*(p1 - p0).T))).astype(np.int64)
-    which = np.repeat(np.arange(len(edges)), n + 1)
-    t = (np.arange(int((n + 1).sum())) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)) / n[which]
-    pts = p0[which] + t[:, None] * (p1 - p0)[which]
-    i = np.clip(np.floor(pts[:, 1] / cell).astype(np.int64), 0, gh - 1)
-    j = np.clip(np.floor(pts[:, 0] / cell).astype(np.int64), 0, gw - 1)
-    return np.unique(i * gw + j)
+    d = np.array([e[3] for e in edges], np.float64) - p0
+    # the part of each edge inside [0, width] x [0, height] (Liang-Barsky)
+    t0, t1 = np.zeros(len(d)), np.ones(len(d))
+    for k, size in ((0, float(width)), (1, float(height))):
+        for q, r in ((-d[:, k], p0[:, k]), (d[:, k], size - p0[:, k])):
+            flat = q == 0
+            t = np.divide(r, q, out=np.zeros_like(r), where=~flat)
+            t1 = np.where(~flat & (q > 0), np.minimum(t1, t), t1)
+            t0 = np.where(~flat & (q < 0), np.maximum(t0, t), t0)
+            t1 = np.where(flat & (r < 0), -1.0, t1)  # parallel and outside
+    keep = t0 <= t1
+    p0, d, t0, t1 = p0[keep], d[keep], t0[keep], t1[keep]
+    n = np.maximum(1, np.ceil(2.0 * (t1 - t0) * np.hypot(d[:, 0], d[:, 1]))).astype(np.int64)
+    total = int((n + 1).sum())
+    if total > MAX_MAP_POINTS:
+        raise ValueError(f"the borders need {total} points to map, more than {MAX_MAP_POINTS}")
+    out = []
+    for lo in range(0, len(n), 4096):
+        nn = n[lo:lo + 4096]
+        which = np.repeat(np.arange(len(nn)), nn + 1)
+        k = np.arange(int((nn + 1).sum())) - np.repeat(np.cumsum(nn + 1) - (nn + 1), nn + 1)
+        t = t0[lo:lo + 4096][which] + k * ((t1 - t0)[lo:lo + 4096] / nn)[which]
+        pts = p0[lo:lo + 4096][which] + t[:, None] * d[lo:lo + 4096][which]
+        i = np.clip(np.floor(pts[:, 1] / cell).astype(np.int64), 0, gh - 1)
+        j = np.clip(np.floor(pts[:, 0] / cell).astype(np.int64), 0, gw - 1)
+        out.append(np.unique(i * gw + j))
+    return np.unique(np.concatenate(out))
 
 
 #: Rings of cells around the stored ones that :func:`fill_map` fills: a border pixel's width is sampled
@@ -321,7 +351,10 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
     gh, gw = -(-h // cell), -(-w // cell)
     ci = np.clip(np.floor(f[:, 1] / cell).astype(np.int64), 0, gh - 1)
     cj = np.clip(np.floor(f[:, 0] / cell).astype(np.int64), 0, gw - 1)
-    cells = border_cells(regions, w, h, cell)
+    try:
+        cells = border_cells(regions, w, h, cell)
+    except ValueError:
+        return pair, None  # borders too long to map (far beyond any photo): one width per pair
     values = np.zeros(len(cells), np.float32)
     if len(cells):
         # the points of each cell, then of each cell's 3 x 3 block
@@ -343,6 +376,6 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
     return pair, fill_map(w, h, cell, cells, values)
 
 
-__all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_SIGMA", "MIN_CONTRAST", "MIN_POINTS",
+__all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_MAP_POINTS", "MAX_SIGMA", "MIN_CONTRAST", "MIN_POINTS",
            "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA", "border_cells", "edge_width_map", "edge_widths",
            "fill_map"]
