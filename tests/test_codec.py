@@ -1026,6 +1026,9 @@ def test_models_beyond_the_limits_are_the_users_error():
     m = Model(4, 4, tiny_model().regions, f)
     with pytest.raises(codec.FormatLimitError, match="1048577 features exceed the limit 1048576"):
         codec.encode(m)
+    m = Model(4, 4, tiny_model().regions * (codec.MAX_REGIONS + 1), Features.empty())
+    with pytest.raises(codec.FormatLimitError, match="4097 regions exceed the limit 4096"):
+        codec.encode(m)  # (before thousands of outlines are checked one by one)
     # other broken models stay plain ValueErrors (a program's mistake, not the user's)
     m = hand_model()
     m.features.st[0, 0] = np.nan

@@ -187,6 +187,10 @@ def from_model(model: Model) -> Quantized:
     """
     width, height = _as_int(model.width, "width"), _as_int(model.height, "height")
     regions = list(model.regions)
+    if len(regions) > layout.MAX_REGIONS:
+        # refused before the outlines are mended one polygon at a time (seconds for thousands)
+        raise layout.FormatLimitError(f"model too large for the .tpsv format: {len(regions)} regions exceed the limit "
+                                      f"{layout.MAX_REGIONS}")
     grid, poly_counts, vert_counts, xy, ctrl, labels = _quantize_regions(regions)
     # rounding to the grid (or an edit) may fold a thin part of an outline over itself
     try:
