@@ -205,3 +205,12 @@ def test_borders_too_long_to_map_are_refused(monkeypatch):
     labels = np.zeros((n, n), np.int32)
     labels[32:] = 1
     assert build_geometry(labels, rgb).blur_map is None
+
+
+def test_deform_drops_the_map_and_keeps_the_pairs_widths():
+    from tpsv.edit.deform import affine
+
+    m = dataclasses.replace(with_map(halves(), 0.5, 1.25), blur=np.array([[0.0, 1.0, 0.75]]))
+    moved = affine(m, 1, [[1, 0, 3], [0, 1, 0]])
+    assert moved.blur_map is None and m.blur_map is not None  # the caller's model is left alone
+    assert moved.blur.tolist() == [[0.0, 1.0, 0.75]]

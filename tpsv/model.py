@@ -284,7 +284,8 @@ class BlurMap:
     ``(i, j)``, and a border point's width is the bilinear sample of ``sigma``
     there (the grid's edges clamped): continuous along every border, the same
     for both regions of a shared one. Only cells a border passes through are
-    stored (docs/FORMAT.md); the others hold the nearest stored value.
+    stored (docs/FORMAT.md); the cells within two of them hold their
+    neighbours' means, the rest 0 (``geometry.edgewidth.fill_map``).
 
     Attributes
     ----------
@@ -328,8 +329,9 @@ class Model:
         The texture detail layer (None: the pure vector image).
     blur_map : BlurMap or None
         Edge width point by point along the borders; where there is one it
-        replaces ``blur`` in the renderer (``blur`` keeps a width per pair,
-        what an edit that moves outlines off the map falls back to).
+        replaces ``blur`` in the renderer (``blur`` still lists a width per
+        pair: ``deform``, which moves borders off the map, drops the map and
+        falls back to it).
     curves : bool
         Outlines are drawn as smooth curves through their vertices
         (``tpsv.geometry.curves``: centripetal Catmull-Rom, broken at corners,

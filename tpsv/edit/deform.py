@@ -62,6 +62,10 @@ follow the renderer's rule for every such pixel
 (``tpsv.geometry.outline.rasterize_regions``): they take the region of the nearest
 covered pixel, and that region's TPS at the clamped ``(S, T)``.
 
+The blur map (``Model.blur_map``: edge widths point by point where the
+borders were) is dropped: every border takes its pair's width again
+(``Model.blur``), as files before format version 7 have it.
+
 Where a moved outline overlaps another region, the region drawn first wins:
 every region a call deforms is put in front (``Params.extra["front"]``, see
 ``tpsv.rendering.pixelmap.draw_order``), the most recently deformed first, unless
@@ -415,6 +419,8 @@ def front_regions(model: Model) -> list[int]:
 
 def _finish(model: Model, out: Model, regions: list[int], keep_order: bool, mappers: dict | None = None,
             attach: bool = True) -> Model:
+    # the blur map holds widths where the borders were; moved ones take their pair's width again
+    out.blur_map = None
     if attach and mappers:
         _glue(model, out, mappers, GLUE_PX)
     if not keep_order and regions:
