@@ -338,8 +338,12 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
     f, a, b, ok, placed, sigma_eff, offset = r
     n_reg = len(regions) + 1
     # each point's width; unreadable points take their pair's
-    default = dict(zip((pair[:, 0] * n_reg + pair[:, 1]).astype(np.int64).tolist(), pair[:, 2].tolist()))
-    pair_sigma = np.array([default.get(int(k), 0.0) for k in (a * n_reg + b)], np.float64)
+    pair_keys = (pair[:, 0] * n_reg + pair[:, 1]).astype(np.int64)  # sorted, as edge_widths lists them
+    key = (a * n_reg + b).astype(np.int64)
+    pair_sigma = np.zeros(len(key))
+    if len(pair_keys):
+        at = np.clip(np.searchsorted(pair_keys, key), 0, len(pair_keys) - 1)
+        pair_sigma = np.where(pair_keys[at] == key, pair[at, 2], 0.0)
     sp = pair_sigma.copy()
     sp[placed & ~ok] = FLAT_SIGMA
     step = np.sqrt(np.maximum(sigma_eff[ok] ** 2 - S0 ** 2, 0.0))
@@ -355,27 +359,25 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
         cells = border_cells(regions, w, h, cell)
     except ValueError:
         return pair, None  # borders too long to map (far beyond any photo): one width per pair
-    values = np.zeros(len(cells), np.float32)
-    if len(cells):
-        # the points of each cell, then of each cell's 3 x 3 block
-        key = ci * gw + cj
-        order = np.argsort(key, kind="stable")
-        ks, vs = key[order], sp[order]
-        for n, c in enumerate(cells.tolist()):
-            i, j = divmod(c, gw)
-            block = []
-            for di in (-1, 0, 1):
-                for dj in (-1, 0, 1):
-                    if 0 <= i + di < gh and 0 <= j + dj < gw:
-                        k = (i + di) * gw + j + dj
-                        lo, hi = np.searchsorted(ks, [k, k + 1])
-                        block.append(vs[lo:hi])
-            pts = np.concatenate(block)
-            v = float(np.median(pts)) if pts.size else 0.0
-            values[n] = 0.0 if v < MIN_SIGMA else np.round(min(v, MAX_SIGMA) * MAP_STEPS) / MAP_STEPS
+    # every point counts in its cell's 3 x 3 block: the median of each stored cell's block
+    near = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
+    inside = [(ci + di >= 0) & (ci + di < gh) & (cj + dj >= 0) & (cj + dj < gw) for di, dj in near]
+    keys = np.concatenate([((ci + di) * gw + cj + dj)[m] for (di, dj), m in zip(near, inside)])
+    vals = np.concatenate([sp[m] for m in inside])
+    if vals.size == 0:
+        return pair, fill_map(w, h, cell, cells, np.zeros(len(cells), np.float32))
+    order = np.lexsort((vals, keys))
+    keys, vals = keys[order], vals[order]
+    lo = np.searchsorted(keys, cells, side="left")
+    count = np.searchsorted(keys, cells, side="right") - lo
+    has = count > 0
+    mid = np.where(has, 0.5 * (vals[np.minimum(lo + (count - 1) // 2, len(vals) - 1)]
+                               + vals[np.minimum(lo + count // 2, len(vals) - 1)]), 0.0)
+    values = np.where(mid < MIN_SIGMA, 0.0, np.round(np.minimum(mid, MAX_SIGMA) * MAP_STEPS) / MAP_STEPS)
+    values = values.astype(np.float32)
     return pair, fill_map(w, h, cell, cells, values)
 
 
-__all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_MAP_POINTS", "MAX_SIGMA", "MIN_CONTRAST", "MIN_POINTS",
-           "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA", "border_cells", "edge_width_map", "edge_widths",
-           "fill_map"]
+__all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_MAP_POINTS", "MAX_SIGMA", "MIN_CONTRAST",
+           "MIN_POINTS", "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA", "border_cells", "edge_width_map",
+           "edge_widths", "fill_map"]
