@@ -207,10 +207,20 @@ def test_borders_too_long_to_map_are_refused(monkeypatch):
     assert build_geometry(labels, rgb).blur_map is None
 
 
-def test_deform_drops_the_map_and_keeps_the_pairs_widths():
+def test_deform_carries_the_widths_with_the_border():
+    """A region moved 16 px takes its border's widths along: the moved border reads them where it is now
+    (the map held none there before), and the map is what the file will hold."""
     from tpsv.edit.deform import affine
 
-    m = dataclasses.replace(with_map(halves(), 0.5, 1.25), blur=np.array([[0.0, 1.0, 0.75]]))
-    moved = affine(m, 1, [[1, 0, 3], [0, 1, 0]])
-    assert moved.blur_map is None and m.blur_map is not None  # the caller's model is left alone
-    assert moved.blur.tolist() == [[0.0, 1.0, 0.75]]
+    m = halves(64, 32)
+    cells = border_cells(m.regions, 64, 32, 4)
+    m = dataclasses.replace(m, blur_map=fill_map(64, 32, 4, cells, np.full(len(cells), 1.25, np.float32)))
+    grid = (m.blur_map.sigma.astype(np.float64), 4.0, 4.0)
+    assert blur_at(grid, np.array([48.0]), np.array([16.0]))[0] == 0.0  # no width where the border goes
+    moved = affine(m, 1, [[1, 0, 16], [0, 1, 0]])
+    assert m.blur_map.sigma[:, 12].max() == 0.0  # the caller's model is left alone
+    x = max(p[:, 0].max() for p in moved.regions[0].outline)
+    assert x == 48.0
+    grid = (moved.blur_map.sigma.astype(np.float64), 4.0, 4.0)
+    assert np.allclose(blur_at(grid, np.full(5, x), np.linspace(2.0, 30.0, 5)), 1.25)
+    assert codec.decode(codec.encode(moved)).blur_map == moved.blur_map

@@ -330,8 +330,8 @@ class Model:
     blur_map : BlurMap or None
         Edge width point by point along the borders; where there is one it
         replaces ``blur`` in the renderer (``blur`` still lists a width per
-        pair: ``deform``, which moves borders off the map, drops the map and
-        falls back to it).
+        pair; ``deform`` carries the map's widths along with the borders it
+        moves).
     curves : bool
         Outlines are drawn as smooth curves through their vertices
         (``tpsv.geometry.curves``: centripetal Catmull-Rom, broken at corners,

@@ -62,9 +62,9 @@ follow the renderer's rule for every such pixel
 (``tpsv.geometry.outline.rasterize_regions``): they take the region of the nearest
 covered pixel, and that region's TPS at the clamped ``(S, T)``.
 
-The blur map (``Model.blur_map``: edge widths point by point where the
-borders were) is dropped: every border takes its pair's width again
-(``Model.blur``), as files before format version 7 have it.
+The blur map (``Model.blur_map``: edge widths point by point) follows the
+deformed borders: the widths along a deformed region's old outline go where
+its points move, and the map is kept as the file will hold it.
 
 Where a moved outline overlaps another region, the region drawn first wins:
 every region a call deforms is put in front (``Params.extra["front"]``, see
@@ -419,8 +419,6 @@ def front_regions(model: Model) -> list[int]:
 
 def _finish(model: Model, out: Model, regions: list[int], keep_order: bool, mappers: dict | None = None,
             attach: bool = True) -> Model:
-    # the blur map holds widths where the borders were; moved ones take their pair's width again
-    out.blur_map = None
     if attach and mappers:
         _glue(model, out, mappers, GLUE_PX)
     if not keep_order and regions:
@@ -432,7 +430,42 @@ def _finish(model: Model, out: Model, regions: list[int], keep_order: bool, mapp
         extra = dict(out.params.extra)
         extra[FRONT_KEY] = ",".join(str(r) for r in new_front)
         out.params.extra = extra
+    out.blur_map = _carried_blur_map(model, out, mappers or {})
     return out
+
+
+def _carried_blur_map(model: Model, out: Model, mappers: dict):
+    """``model``'s blur map with the widths of each deformed region's border carried along with it.
+
+    The widths along a deformed region's old outline go to the cells its
+    points move to; then the cells the new borders pass through keep their
+    widths (on the file's 1/16 px grid) and the rings around them are filled
+    again (``geometry.edgewidth.fill_map``): the map the file will hold, up
+    to the file's rounding of the outlines.
+    """
+    bm = model.blur_map
+    if bm is None or not mappers:
+        return bm
+    from ..geometry.edgewidth import border_cells, fill_map, map_at
+
+    old = np.asarray(bm.sigma, np.float64)
+    grid = old.copy()
+    gh, gw = grid.shape
+    for r, phi in mappers.items():
+        pts = np.concatenate([_subdivide(np.asarray(p, np.float64), 0.5) for p in model.regions[r].outline])
+        width = map_at(old, bm.cell, bm.cell, pts[:, 0], pts[:, 1])
+        new = phi(pts)
+        ok = np.isfinite(new).all(axis=1)
+        i = np.clip(np.floor(new[ok, 1] / bm.cell).astype(np.int64), 0, gh - 1)
+        j = np.clip(np.floor(new[ok, 0] / bm.cell).astype(np.int64), 0, gw - 1)
+        grid[i, j] = width[ok]
+    try:
+        cells = border_cells(out.regions, out.width, out.height, bm.cell)
+    except ValueError:
+        return None
+    # on the file's 1/16 px grid, so that a render before saving is the render after
+    values = np.rint(np.clip(grid.ravel()[cells], 0.0, 255 / 16) * 16) / 16
+    return fill_map(out.width, out.height, bm.cell, cells, values.astype(np.float32))
 
 
 def _replace_patch(out: Model, r: int, new: Patch, outline) -> None:

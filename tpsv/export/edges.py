@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rendering.borders import blur_at
+from ..geometry.edgewidth import map_at
 
 #: Ring offsets across a soft edge, in units of its sigma, outward (Phi(-k) at ring k).
 RINGS = np.linspace(-3.0, 3.0, 13)
@@ -103,8 +103,8 @@ def edge_sigmas(model) -> tuple[list[list[np.ndarray]], list[list[np.ndarray]]]:
     if bmap is not None:
         # the map's width at each edge's middle (the renderer's at every point of it)
         mid = 0.5 * (a + b)
-        grid = (np.asarray(bmap.sigma, np.float64), float(bmap.cell), float(bmap.cell))
-        sigma = np.where(across >= 0, np.maximum(blur_at(grid, mid[:, 0], mid[:, 1]), 0.0), 0.0)
+        width = map_at(np.asarray(bmap.sigma, np.float64), float(bmap.cell), float(bmap.cell), mid[:, 0], mid[:, 1])
+        sigma = np.where(across >= 0, np.maximum(width, 0.0), 0.0)
     elif blur.size and R:
         # look the pair (a < b) up in the sorted keys a * R + b of the blur table
         bk = blur[:, 0].astype(np.int64) * R + blur[:, 1].astype(np.int64)

@@ -267,6 +267,21 @@ def border_cells(regions, width: int, height: int, cell: int = MAP_CELL) -> np.n
     return np.unique(np.concatenate(out))
 
 
+def map_at(sigma: np.ndarray, cw: float, ch: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear sample of a grid of widths ``sigma`` (cells ``cw x ch``, centres at half cells, the grid's
+    edges clamped) at points ``(x, y)`` in the grid's units: a border point's width (``Model.blur_map``)."""
+    gh, gw = sigma.shape
+    u = np.clip(np.asarray(x, np.float64) / cw - 0.5, 0.0, gw - 1)
+    v = np.clip(np.asarray(y, np.float64) / ch - 0.5, 0.0, gh - 1)
+    i0 = np.minimum(np.floor(v).astype(np.int64), max(gh - 2, 0))
+    j0 = np.minimum(np.floor(u).astype(np.int64), max(gw - 2, 0))
+    i1, j1 = np.minimum(i0 + 1, gh - 1), np.minimum(j0 + 1, gw - 1)
+    fv, fu = v - i0, u - j0
+    top = sigma[i0, j0] * (1 - fu) + sigma[i0, j1] * fu
+    bottom = sigma[i1, j0] * (1 - fu) + sigma[i1, j1] * fu
+    return top * (1 - fv) + bottom * fv
+
+
 #: Rings of cells around the stored ones that :func:`fill_map` fills: a border pixel's width is sampled
 #: bilinearly at its border point, within a pixel of the stored outline, so it reads cells at most two
 #: cells from a stored one.
@@ -380,4 +395,4 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
 
 __all__ = ["FILL_RINGS", "FLAT_SIGMA", "MAP_CELL", "MAP_STEPS", "MAX_MAP_POINTS", "MAX_SIGMA", "MIN_CONTRAST",
            "MIN_POINTS", "MIN_SIGMA", "MISPLACED", "PROBE", "S0", "UNSURE_SIGMA", "border_cells", "edge_width_map",
-           "edge_widths", "fill_map"]
+           "edge_widths", "fill_map", "map_at"]

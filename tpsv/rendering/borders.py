@@ -41,6 +41,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from ..geometry import curves
+from ..geometry.edgewidth import map_at
 
 #: Longest outline piece, output pixels.
 PIECE_PX = 1.0
@@ -109,17 +110,7 @@ def blur_map(model, kx: float, ky: float):
 def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear sample of a :func:`blur_map` at output points ``(x, y)`` (cell centres at half cells, edges
     clamped): the edge width there, output px."""
-    sigma, cw, ch = bmap
-    gh, gw = sigma.shape
-    u = np.clip(np.asarray(x, np.float64) / cw - 0.5, 0.0, gw - 1)
-    v = np.clip(np.asarray(y, np.float64) / ch - 0.5, 0.0, gh - 1)
-    i0 = np.minimum(np.floor(v).astype(np.int64), max(gh - 2, 0))
-    j0 = np.minimum(np.floor(u).astype(np.int64), max(gw - 2, 0))
-    i1, j1 = np.minimum(i0 + 1, gh - 1), np.minimum(j0 + 1, gw - 1)
-    fv, fu = v - i0, u - j0
-    top = sigma[i0, j0] * (1 - fu) + sigma[i0, j1] * fu
-    bottom = sigma[i1, j0] * (1 - fu) + sigma[i1, j1] * fu
-    return top * (1 - fv) + bottom * fv
+    return map_at(*bmap, x, y)
 
 
 def outline_pieces(model, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
