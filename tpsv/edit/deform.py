@@ -446,6 +446,7 @@ def _carried_blur_map(model: Model, out: Model, mappers: dict):
     bm = model.blur_map
     if bm is None or not mappers:
         return bm
+    from ..codec.quant import BLUR_SCALE, MAX_BLUR
     from ..geometry.edgewidth import border_cells, fill_map, map_at
 
     old = np.asarray(bm.sigma, np.float64)
@@ -464,7 +465,7 @@ def _carried_blur_map(model: Model, out: Model, mappers: dict):
     except ValueError:
         return None
     # on the file's 1/16 px grid, so that a render before saving is the render after
-    values = np.rint(np.clip(grid.ravel()[cells], 0.0, 255 / 16) * 16) / 16
+    values = np.rint(np.clip(grid.ravel()[cells], 0.0, MAX_BLUR / BLUR_SCALE) * BLUR_SCALE) / BLUR_SCALE
     return fill_map(out.width, out.height, bm.cell, cells, values.astype(np.float32))
 
 
