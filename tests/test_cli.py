@@ -153,6 +153,7 @@ def test_truncated_tpsv(tmp_path, tpsv_file, cut):
     for args in (("info", bad), ("render", bad, "-o", tmp_path / "r.png")):
         r = run(*args)
         assert_one_line_error(r)
+        assert "bad.tpsv" in r.stderr  # the message names the file
     assert not (tmp_path / "r.png").exists()
 
 

@@ -8,6 +8,7 @@ import numpy as np
 from . import main
 from .options import emit_json, json_option
 from .. import codec
+from ..errors import TpsvFormatError
 from ..fileio import display, read_bytes
 from ..model import CURVILINEAR, DETAIL_FULL, DETAIL_LUMA
 
@@ -80,7 +81,10 @@ def info(path: str, as_json: bool) -> None:
     Strings stored in the file are shown escaped (\\x1b for ESC...); free-form
     entries stored beside the parameters are listed apart, as "extra".
     """
-    s = summary(read_bytes(path, limit=codec.MAX_FILE_BYTES))
+    try:
+        s = summary(read_bytes(path, limit=codec.MAX_FILE_BYTES))
+    except TpsvFormatError as exc:
+        raise TpsvFormatError(f"{display(path)}: {exc}") from None  # named as render and the others name it
     if as_json:
         emit_json(s)  # JSON escapes control characters itself
         return
