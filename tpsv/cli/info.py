@@ -60,10 +60,15 @@ def summary(data: bytes) -> dict:
 
 
 def _map_summary(model) -> dict:
-    """The blur map as stored: cell side, cells, narrowest and widest width (px)."""
-    q = codec.quant.from_model(model)
-    w = q.map_values.astype(np.float64) / codec.quant.BLUR_SCALE
-    return {"cell": int(q.map_cell), "cells": int(len(w)), "min": float(w.min()) if w.size else 0.0,
+    """The blur map as stored: cell side, cells, narrowest and widest width (px).
+
+    The decoded map holds the stored widths in the cells the borders pass through.
+    """
+    from ..geometry.edgewidth import border_cells
+
+    bm = model.blur_map
+    w = np.asarray(bm.sigma, np.float64).ravel()[border_cells(model.regions, model.width, model.height, bm.cell)]
+    return {"cell": int(bm.cell), "cells": int(len(w)), "min": float(w.min()) if w.size else 0.0,
             "max": float(w.max()) if w.size else 0.0}
 
 

@@ -87,25 +87,27 @@ def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def _shared_edges(regions) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """``(a, b, start, end)`` of every outline edge regions ``a < b`` share (exact vertices)."""
+def _shared_edges(regions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every outline edge regions ``a < b`` share (exact vertices): ``a``, ``b`` (k,) and the edge's
+    start and end (k, 2), in the order of the regions' polygons and their edges."""
     from ..codec import chains
     from ..codec.quant import OUTLINE_SCALE
 
     polys, owner = [], []
     for r, reg in enumerate(regions):
         for p in reg.outline:
-            polys.append(np.rint(np.asarray(p, np.float64) * OUTLINE_SCALE).astype(np.int64))
+            polys.append(np.rint(np.asarray(p, np.float64) * OUTLINE_SCALE).astype(np.int64).reshape(-1, 2))
             owner.append(r)
-    part = chains.partners(polys)
-    out = []
-    for i, (p, pt) in enumerate(zip(polys, part)):
-        q = np.roll(p, -1, axis=0)
-        for e in np.flatnonzero(pt[:, 0] >= 0):
-            a, b = owner[i], owner[int(pt[e, 0])]
-            if a < b:
-                out.append((a, b, p[e] / OUTLINE_SCALE, q[e] / OUTLINE_SCALE))
-    return out
+    if not polys or not sum(len(p) for p in polys):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
+    part = np.concatenate(chains.partners(polys))
+    start = np.concatenate(polys)
+    end = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
+    owner = np.asarray(owner, np.int64)
+    a = np.repeat(owner, [len(p) for p in polys])
+    b = np.where(part[:, 0] >= 0, owner[np.maximum(part[:, 0], 0)], -1)
+    keep = (part[:, 0] >= 0) & (a < b)
+    return a[keep], b[keep], start[keep] / OUTLINE_SCALE, end[keep] / OUTLINE_SCALE
 
 
 def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
@@ -136,8 +138,8 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray):
     """The readings at points every pixel along the shared borders (module doc), or None without borders:
     ``(f, a, b, ok, placed, sigma_eff, offset)``."""
     rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
-    edges = _shared_edges(regions)
-    if not edges:
+    a, b, p0, p1 = _shared_edges(regions)
+    if not len(a):
         return None
     grad = np.zeros(rgb.shape[:2])
     for k in range(3):
@@ -148,17 +150,14 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray):
     del channel, term
     grad = np.sqrt(grad, out=grad)
     grad /= 8.0
-    pair = np.array([(a, b) for a, b, _, _ in edges], np.int64)
-    p0 = np.array([s for _, _, s, _ in edges])
-    p1 = np.array([e for _, _, _, e in edges])
     seg = p1 - p0
     length = np.hypot(*seg.T)
     n_pts = np.maximum(1, np.floor(length)).astype(np.int64)
-    which = np.repeat(np.arange(len(edges)), n_pts)
+    which = np.repeat(np.arange(len(a)), n_pts)
     t = (np.arange(int(n_pts.sum())) - np.repeat(np.cumsum(n_pts) - n_pts, n_pts) + 0.5) / n_pts[which]
     f = p0[which] + t[:, None] * seg[which]
     normal = np.stack([-seg[which, 1], seg[which, 0]], 1) / np.maximum(length[which], 1e-12)[:, None]
-    a, b = pair[which, 0], pair[which, 1]
+    a, b = a[which], b[which]
     H, W = index.shape
 
     def region_at(xy):
@@ -234,11 +233,10 @@ def border_cells(regions, width: int, height: int, cell: int = MAP_CELL) -> np.n
         The borders would need more than :data:`MAX_MAP_POINTS` points.
     """
     gh, gw = -(-int(height) // cell), -(-int(width) // cell)
-    edges = _shared_edges(regions)
-    if not edges:
+    _, _, p0, p1 = _shared_edges(regions)
+    if not len(p0):
         return np.zeros(0, np.int64)
-    p0 = np.array([e[2] for e in edges], np.float64)
-    d = np.array([e[3] for e in edges], np.float64) - p0
+    d = p1 - p0
     # the part of each edge inside [0, width] x [0, height] (Liang-Barsky)
     t0, t1 = np.zeros(len(d)), np.ones(len(d))
     for k, size in ((0, float(width)), (1, float(height))):
