@@ -840,8 +840,20 @@ class LatticeGradation:
         col = np.asarray(lab).reshape(-1, 3)
         self.col = col if self.pix is None else col[self.pix]
         self.spacings = tuple(sorted(float(d) for d in spacings))
-        self.lattices = [self._lattice(d) for d in self.spacings]
-        self.region_rms = np.stack([lat["region_rms"] for lat in self.lattices])  # (n_d, R)
+        # Each spacing's lattice is a pass over every pixel (a 12-megapixel photo: about a second
+        # each), and the quality modes ask for one or two of the 16: made when first asked.
+        self._lattices: dict[int, dict] = {}
+        # No cell's RMS deviation exceeds the diagonal of the colours' bounding box: a T_super
+        # above it (with a margin for rounding) passes every lattice without making one.
+        span = self.col.max(axis=0).astype(np.float64) - self.col.min(axis=0) if self.col.size else np.zeros(3)
+        self._rms_bound = LAB_SCALE * float(np.sqrt(np.sum(np.square(span)))) * (1.0 + 1e-6) + 1e-6
+
+    def lattice(self, j: int) -> dict:
+        """The lattice of ``spacings[j]`` (made at first use): its cells, their mean colours and
+        ``region_rms`` (R,), the regions' mean RMS colour deviation of their cells."""
+        if j not in self._lattices:
+            self._lattices[j] = self._lattice(self.spacings[j])
+        return self._lattices[j]
 
     def _grid(self, d: float) -> np.ndarray:
         return np.maximum(1, np.rint(self.scale / d)).astype(np.int64)  # (R, 2) cells along S, T
@@ -884,12 +896,24 @@ class LatticeGradation:
     def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None) -> np.ndarray:
         """Index into ``spacings`` per region for ``t_super``, no coarser than ``max_spacing``
         (pixels per region, optional) where that is given."""
-        ok = self.region_rms <= float(t_super)  # (n_d, R), spacings ascending
+        R, t_super = self.n_regions, float(t_super)
+        allowed = np.ones((len(self.spacings), R), bool)  # spacings ascending
         if max_spacing is not None:
-            ok &= np.asarray(self.spacings)[:, None] <= np.asarray(max_spacing, np.float64)[None, :]
-            ok[0] = ok[0] | ~ok.any(axis=0)  # a cap below the finest spacing gets the finest
-        last = len(self.spacings) - 1 - np.argmax(ok[::-1], axis=0)
-        return np.where(ok.any(axis=0), last, 0)
+            allowed &= np.asarray(self.spacings)[:, None] <= np.asarray(max_spacing, np.float64)[None, :]
+        # the coarsest allowed lattice within t_super, else the finest: from the coarsest down, a
+        # lattice made only while a region still waits for it
+        pick = np.zeros(R, np.int64)
+        open_ = np.ones(R, bool)
+        for j in range(len(self.spacings) - 1, -1, -1):
+            ask = open_ & allowed[j]
+            if not ask.any():
+                continue
+            ok = ask if t_super > self._rms_bound else ask & (self.lattice(j)["region_rms"] <= t_super)
+            pick[ok] = j
+            open_ &= ~ok
+            if not open_.any():
+                break
+        return pick
 
     def _pixel_rows(self, pixels: np.ndarray | None) -> np.ndarray | None:
         if pixels is None or len(pixels) == 0:
@@ -915,10 +939,11 @@ class LatticeGradation:
     def _regions(self, t_super, rows, max_spacing=None):
         pick = self.region_spacing(t_super, max_spacing)
         parts = []
-        for j, lat in enumerate(self.lattices):
+        for j in range(len(self.spacings)):
             regs = np.nonzero(pick == j)[0]
             if regs.size == 0:
                 continue
+            lat = self.lattice(j)
             mine = np.isin(lat["region"], regs) & lat["used"]
             split = np.zeros(mine.size, bool)
             k = int(np.ceil(lat["d"] / self.edge_px - 1e-9))
