@@ -111,6 +111,18 @@ def test_corners_stay_sharp():
     assert np.sqrt((dist**2).mean()) < 0.05
 
 
+@pytest.mark.parametrize("window, degree", [(9, 3), (5, 2), (11, 3), (7, 4)])
+def test_run_smoothing_weights_are_savitzky_golay(window, degree):
+    """The runs' smoothing weights are scipy's Savitzky-Golay coefficients to the bit (written
+    here so that a command does not import scipy.signal), and a cubic passes through unchanged."""
+    from scipy.signal import savgol_coeffs
+
+    w = subpixel._savgol_weights(window, degree)
+    assert np.array_equal(w, savgol_coeffs(window, degree))
+    x = np.arange(window) - window // 2
+    assert np.dot(w, 0.3 * x**3 - x**2 + 2 * x + 5) == pytest.approx(5.0, abs=1e-9)
+
+
 def test_vertices_slide_along_the_border_onto_the_grid():
     """On a smooth border a vertex takes the grid point nearest to the border, not the nearest grid point."""
     t = np.linspace(0, 2 * np.pi, 40, endpoint=False)

@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
-from scipy.signal import savgol_coeffs
 
 from . import curves, outline
 
@@ -792,6 +791,21 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
 SMOOTH_WINDOW, SMOOTH_DEGREE = 9, 3
 
 
+def _savgol_weights(window: int, degree: int) -> np.ndarray:
+    """Savitzky-Golay smoothing weights: the value at the window's centre of the least-squares
+    polynomial of ``degree`` through ``window`` points (``scipy.signal.savgol_coeffs(window, degree)``
+    to the bit; that import alone, scipy.signal and scipy.stats with it, took 1-2 s of every
+    command's start)."""
+    half = window // 2
+    x = np.arange(-half, window - half, dtype=float)[::-1]
+    rhs = np.zeros(degree + 1)
+    rhs[0] = 1.0
+    return np.linalg.lstsq(x ** np.arange(degree + 1).reshape(-1, 1), rhs, rcond=None)[0]
+
+
+_SMOOTH_WEIGHTS = _savgol_weights(SMOOTH_WINDOW, SMOOTH_DEGREE)
+
+
 def _smooth_run(p: np.ndarray) -> np.ndarray:
     """An open run of contour points smoothed along itself, its ends and corners kept where they are."""
     n = len(p)
@@ -800,7 +814,7 @@ def _smooth_run(p: np.ndarray) -> np.ndarray:
     pins = np.flatnonzero(curves.open_breaks(p))  # its ends and corners
     out = p.copy()
     r = SMOOTH_WINDOW // 2
-    w = savgol_coeffs(SMOOTH_WINDOW, SMOOTH_DEGREE)
+    w = _SMOOTH_WEIGHTS
     for a, b in zip(pins[:-1], pins[1:]):
         seg = p[a:b + 1]
         if len(seg) <= r + 1:
