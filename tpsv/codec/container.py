@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import zlib
 
+import numpy as np
 import zstandard
 
 from ..errors import TpsvError, TpsvFormatError
@@ -21,16 +22,15 @@ ZSTD_LEVEL = 16
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
-def _quantized(model: Model) -> quant.Quantized:
-    """``model`` as stored, checked; ValueError when it cannot be encoded
-    (FormatLimitError, also a TpsvError, when it is too large for the format)."""
+def _quantized(model: Model) -> tuple[quant.Quantized, np.ndarray | None]:
+    """``model`` as stored, checked, and its blur map's cells (``quant.validate``); ValueError when
+    it cannot be encoded (FormatLimitError, also a TpsvError, when it is too large for the format)."""
     q = quant.from_model(model)
     quant.check_limits(q)
     try:
-        quant.validate(q)
+        return q, quant.validate(q)
     except TpsvFormatError as exc:
         raise ValueError(f"model cannot be encoded: {exc}") from None
-    return q
 
 
 def quantize(model: Model) -> Model:
@@ -51,7 +51,7 @@ def quantize(model: Model) -> Model:
     ValueError
         The model cannot be encoded (see :func:`encode`).
     """
-    out = quant.to_model(_quantized(model))
+    out = quant.to_model(*_quantized(model))
     out.detail = detail_codec.quantize(model.detail, len(model.regions))
     return out
 
@@ -80,7 +80,7 @@ def encode(model: Model) -> bytes:
         The model breaks another rule of the format: wrong shapes, non-finite
         values, features not sorted by region, asymmetric pairs.
     """
-    q = _quantized(model)
+    q, _ = _quantized(model)
     detail = detail_codec.quantize(model.detail, len(q.labels))
     raws = (sections.pack_params(q), sections.pack_regions(q), sections.pack_features(q))
     # No zstd checksum (the header's CRC-32 covers the payload) and no dict id.
@@ -159,8 +159,7 @@ def decode(data: bytes) -> Model:
             q.xy, q.vert_counts = quant.mend_outlines(q.xy, q.vert_counts)
         except TpsvError as exc:
             raise TpsvFormatError(str(exc)) from None
-    quant.validate(q)
-    model = quant.to_model(q)
+    model = quant.to_model(q, quant.validate(q))
     if h.has_detail:
         start += layout.DETAIL_SIZES.size
         raw = _decompress(payload[start:start + h.detail[0]], h.detail[1], "detail")

@@ -249,13 +249,15 @@ def _quantize_blur_map(bmap, width: int, height: int, xy, poly_counts, vert_coun
     return {"map_cell": cell, "map_values": v.astype(np.uint8)}
 
 
-def blur_map_of(q: Quantized):
-    """The :class:`~tpsv.model.BlurMap` ``q`` stands for, or None."""
+def blur_map_of(q: Quantized, cells: np.ndarray | None = None):
+    """The :class:`~tpsv.model.BlurMap` ``q`` stands for, or None (``cells``: its cells, when
+    :func:`validate` has found them)."""
     if q.map_values is None:
         return None
     from ..geometry.edgewidth import fill_map
 
-    cells = map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell)
+    if cells is None:
+        cells = map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell)
     return fill_map(q.width, q.height, q.map_cell, cells, q.map_values.astype(np.float32) / BLUR_SCALE)
 
 
@@ -464,8 +466,15 @@ def _plain_value(value, key: str):
 # ---------------------------------------------------------------- validation
 
 
-def validate(q: Quantized) -> None:
+def validate(q: Quantized) -> np.ndarray | None:
     """Check every value rule of the format on ``q``.
+
+    Returns
+    -------
+    ndarray or None
+        The blur map's cells, which its count of widths was checked against
+        (None without a map): :func:`to_model` takes them instead of finding
+        them again from the borders.
 
     Raises
     ------
@@ -476,8 +485,9 @@ def validate(q: Quantized) -> None:
     layout.check_header_limits(_header(q))
     _validate_regions(q)
     _validate_blur(q)
-    _validate_blur_map(q)
+    cells = _validate_blur_map(q)
     _validate_features(q)
+    return cells
 
 
 def check_limits(q: Quantized) -> None:
@@ -608,17 +618,19 @@ def _validate_blur(q: Quantized) -> None:
         raise TpsvFormatError(f"blur {bad[0] + 1}: region pairs not in increasing order")
 
 
-def _validate_blur_map(q: Quantized) -> None:
+def _validate_blur_map(q: Quantized) -> np.ndarray | None:
     if q.map_values is None:
-        return
+        return None
     if not 2 <= q.map_cell <= layout.MAX_MAP_CELL:
         raise TpsvFormatError(f"blur map: cell side {q.map_cell} not in 2..{layout.MAX_MAP_CELL}")
     try:
-        n = len(map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell))
+        cells = map_cells((q.xy, q.poly_counts, q.vert_counts), q.width, q.height, q.map_cell)
     except ValueError as exc:
         raise TpsvFormatError(f"blur map: {exc}") from None
-    if len(q.map_values) != n:
-        raise TpsvFormatError(f"blur map: {len(q.map_values)} widths for the {n} cells the borders pass through")
+    if len(q.map_values) != len(cells):
+        raise TpsvFormatError(f"blur map: {len(q.map_values)} widths for the {len(cells)} cells the borders "
+                              "pass through")
+    return cells
 
 
 def _validate_features(q: Quantized) -> None:
@@ -674,8 +686,8 @@ def _validate_pairs(pair: np.ndarray, kind: np.ndarray) -> None:
 # ---------------------------------------------------------------- ints -> model
 
 
-def to_model(q: Quantized) -> Model:
-    """The float model a valid ``Quantized`` stands for."""
+def to_model(q: Quantized, map_cells: np.ndarray | None = None) -> Model:
+    """The float model a valid ``Quantized`` stands for (``map_cells``: what :func:`validate` returned)."""
     p = q.params
     params = Params(**{name: p[name] for name in PARAM_FIELDS}, extra=dict(p["extra"]))
     return Model(
@@ -683,7 +695,7 @@ def to_model(q: Quantized) -> Model:
         features=_dequantize_features(q, p["l_step"], p["ab_step"]), params=params,
         encoding={ST_BITS_KEY: q.st_bits, ST_BITS_FOR_KEY: (q.width, q.height, p["st_steps"])},
         blur=np.column_stack([q.blur[:, :2].astype(np.float64), q.blur[:, 2] / BLUR_SCALE]).reshape(-1, 3),
-        curves=bool(q.curves), blur_map=blur_map_of(q),
+        curves=bool(q.curves), blur_map=blur_map_of(q, map_cells),
     )
 
 
