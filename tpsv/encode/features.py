@@ -779,8 +779,10 @@ class LatticeGradation:
     mean colour of its pixels. The spacing adapts per region to ``T_super``:
     ``d`` is the largest of :data:`LATTICE_PX` at which the cells' RMS colour
     deviation (``2.55 * Lab`` units, as the superpixel variance), averaged over
-    the region's pixels, is at most ``T_super`` (the smallest spacing when
-    none is). A smaller ``T_super`` never gives a coarser lattice.
+    the region's pixels, is at most ``T_super`` and whose cells give the region
+    3 non-collinear features (else anchors would pad it with more features than
+    a finer lattice has); the smallest spacing when none is. A smaller
+    ``T_super`` never gives a coarser lattice.
 
     Cells holding a curvilinear feature are cut into ``k x k`` sub-cells no
     wider than ``edge_px``, so that an edge pair is never isolated among
@@ -885,6 +887,34 @@ class LatticeGradation:
         return dict(d=d, n=n, off=off, used=w > 0, region=r_of, lab=stats["lab"].astype(np.float32),
                     region_rms=region_rms)
 
+    def _stands(self, j: int, regions: np.ndarray) -> np.ndarray:
+        """Whether each of ``regions`` gets 3 non-collinear features from its own used cells of
+        lattice ``j`` (:meth:`FeatureExtractor.anchors`' rule on their pixel-space centres).
+
+        A region that does not is given up to 9 anchors at its extreme pixels, more features
+        than a finer lattice that stands gives it (quality 10 of the pure vector image then
+        made larger files than quality 20). Only these regions' pixels are read.
+        """
+        if j in self._lattices:
+            lat = self._lattices[j]
+            cells = np.flatnonzero(lat["used"] & np.isin(lat["region"], regions))
+        else:
+            n = self._grid(self.spacings[j])
+            lat = dict(n=n, off=np.concatenate([[0], np.cumsum(n[:, 0] * n[:, 1])]))
+            rows = np.flatnonzero(np.isin(self.reg, regions))
+            cells = np.unique(self._cells(lat, rows))
+            lat["region"] = np.repeat(np.arange(self.n_regions, dtype=np.int32), n[:, 0] * n[:, 1])
+        R = self.n_regions
+        reg = lat["region"][cells].astype(np.int64)
+        xy = to_pixel_space(self.patches, reg, self._centres(lat, cells))
+        cnt = np.bincount(reg, minlength=R).astype(np.float64)
+        safe = np.maximum(cnt, 1.0)
+        mx, my = np.bincount(reg, xy[:, 0], R) / safe, np.bincount(reg, xy[:, 1], R) / safe
+        dx, dy = xy[:, 0] - mx[reg], xy[:, 1] - my[reg]
+        cxx, cyy = np.bincount(reg, dx * dx, R) / safe, np.bincount(reg, dy * dy, R) / safe
+        cxy = np.bincount(reg, dx * dy, R) / safe
+        return ((cnt >= 3) & (cxx * cyy - cxy * cxy >= 1e-4))[regions]
+
     @staticmethod
     def _centres(lat: dict, cells: np.ndarray) -> np.ndarray:
         """``(S, T)`` (k, 2) float64 of the centres of lattice ``lat``'s ``cells``."""
@@ -894,8 +924,10 @@ class LatticeGradation:
         return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
     def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None) -> np.ndarray:
-        """Index into ``spacings`` per region for ``t_super``, no coarser than ``max_spacing``
-        (pixels per region, optional) where that is given."""
+        """Index into ``spacings`` per region for ``t_super``: the coarsest lattice whose cells'
+        RMS colour deviation is within ``t_super`` and that gives the region 3 non-collinear
+        features by itself (:meth:`_stands`; the finest always qualifies), no coarser than
+        ``max_spacing`` (pixels per region, optional) where that is given; the finest when none is."""
         R, t_super = self.n_regions, float(t_super)
         allowed = np.ones((len(self.spacings), R), bool)  # spacings ascending
         if max_spacing is not None:
@@ -906,6 +938,10 @@ class LatticeGradation:
         open_ = np.ones(R, bool)
         for j in range(len(self.spacings) - 1, -1, -1):
             ask = open_ & allowed[j]
+            if j > 0 and ask.any():
+                # a lattice that needs anchors is never taken while a finer one may stand
+                asked = np.flatnonzero(ask)
+                ask[asked] = self._stands(j, asked)
             if not ask.any():
                 continue
             ok = ask if t_super > self._rms_bound else ask & (self.lattice(j)["region_rms"] <= t_super)
