@@ -923,11 +923,13 @@ class LatticeGradation:
         k = cells - lat["off"][r]
         return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
-    def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None) -> np.ndarray:
+    def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None,
+                       standalone: bool = True) -> np.ndarray:
         """Index into ``spacings`` per region for ``t_super``: the coarsest lattice whose cells'
-        RMS colour deviation is within ``t_super`` and that gives the region 3 non-collinear
-        features by itself (:meth:`_stands`; the finest always qualifies), no coarser than
-        ``max_spacing`` (pixels per region, optional) where that is given; the finest when none is."""
+        RMS colour deviation is within ``t_super`` and, with ``standalone``, that gives the
+        region 3 non-collinear features by itself (:meth:`_stands`; the finest always
+        qualifies), no coarser than ``max_spacing`` (pixels per region, optional) where that is
+        given; the finest when none is."""
         R, t_super = self.n_regions, float(t_super)
         allowed = np.ones((len(self.spacings), R), bool)  # spacings ascending
         if max_spacing is not None:
@@ -938,7 +940,7 @@ class LatticeGradation:
         open_ = np.ones(R, bool)
         for j in range(len(self.spacings) - 1, -1, -1):
             ask = open_ & allowed[j]
-            if j > 0 and ask.any():
+            if standalone and j > 0 and ask.any():
                 # a lattice that needs anchors is never taken while a finer one may stand
                 asked = np.flatnonzero(ask)
                 ask[asked] = self._stands(j, asked)
@@ -961,10 +963,11 @@ class LatticeGradation:
         return pos[self.pix[pos] == pixels]
 
     def features(self, t_super: float, edge_pixels: np.ndarray | None = None,
-                 max_spacing: np.ndarray | None = None) -> FeatureSet:
+                 max_spacing: np.ndarray | None = None, standalone: bool = True) -> FeatureSet:
         """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided;
-        each region's spacing at most its ``max_spacing`` (pixels, optional)."""
-        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels), max_spacing)
+        each region's spacing at most its ``max_spacing`` (pixels, optional); ``standalone``: as
+        :meth:`region_spacing`."""
+        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels), max_spacing, standalone)
         xy = to_pixel_space(self.patches, reg, st)  # for de-duplication and anchors
         n = reg.size
         return FeatureSet(
@@ -972,8 +975,8 @@ class LatticeGradation:
             pair=np.full(n, -1, np.int32), st=st.astype(np.float64),
         )
 
-    def _regions(self, t_super, rows, max_spacing=None):
-        pick = self.region_spacing(t_super, max_spacing)
+    def _regions(self, t_super, rows, max_spacing=None, standalone=True):
+        pick = self.region_spacing(t_super, max_spacing, standalone)
         parts = []
         for j in range(len(self.spacings)):
             regs = np.nonzero(pick == j)[0]

@@ -209,8 +209,11 @@ class Trials:
                     ab_step=steps[1])
         # per-pixel data is dropped as soon as its stage is done: the peak memory is the
         # largest stage's, not the sum of them (issue 12)
+        # the coarsest lattice as it is, anchors and all: small shapes drawn at 8x keep their colour
+        # to their borders (the synthetic shapes: 45.55 dB, against 45.23 dB for 6 % fewer bytes
+        # with lattices that stand alone)
         model = make_model(self.rgb, self.geometry, FeatureExtractor(self.rgb, self.geometry.index), p,
-                           fit=False, max_spacing=max_spacing)
+                           fit=False, max_spacing=max_spacing, standalone=False)
         self.geometry.forget("lattice")
         give_back()
         model = fit_model(self.rgb, self.geometry, model, base_fit_sub(w, h), BASE_FIT_ITERATIONS)

@@ -437,6 +437,7 @@ def make_model(
     fit_sub: int = 1,
     fit_iterations: int = 6,
     max_spacing: np.ndarray | None = None,
+    standalone: bool = True,
 ) -> Model:
     """Stage 4: the model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
@@ -457,6 +458,9 @@ def make_model(
         Pixel lattice and iterations of the fit.
     max_spacing : ndarray (n_regions,), optional
         The coarsest lattice spacing (pixels) each region may get (``"tpsv"`` scheme).
+    standalone : bool
+        Only lattices that give a region 3 non-collinear features by themselves
+        (``LatticeGradation.region_spacing``; else anchors fill in).
 
     Returns
     -------
@@ -468,7 +472,7 @@ def make_model(
         feats = extractor.extract(params.t_canny, params.t_super).in_patch_space(patches)
     else:
         feats = tpsv_features(geometry, extractor, params.t_canny, params.t_super,
-                              max_spacing).in_patch_space(patches)
+                              max_spacing, standalone).in_patch_space(patches)
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
@@ -506,12 +510,13 @@ def fit_model(rgb: np.ndarray, geometry: Geometry, model: Model, fit_sub: int = 
 
 
 def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float,
-                  max_spacing: np.ndarray | None = None) -> FeatureSet:
+                  max_spacing: np.ndarray | None = None, standalone: bool = True) -> FeatureSet:
     """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known.
 
     Curvilinear pairs (one per ``CURVE_STEP`` block), the gradation lattice
     (cells holding an edge pixel subdivided; each region's spacing at most its
-    ``max_spacing``, pixels, when given) without its features next to a pair,
+    ``max_spacing``, pixels, when given; ``standalone``: as
+    ``LatticeGradation.region_spacing``) without its features next to a pair,
     and the anchors regions still need.
     """
     w, h = extractor.w, extractor.h
@@ -522,7 +527,7 @@ def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: floa
         cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, w - 1)
         cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, h - 1)
         edge = np.unique(cy * w + cx)
-    grad = drop_near(lattice.features(t_super, edge, max_spacing), cur, DEDUP_PX, (w, h))
+    grad = drop_near(lattice.features(t_super, edge, max_spacing, standalone), cur, DEDUP_PX, (w, h))
     both = FeatureSet.concat([cur, grad])
     return FeatureSet.concat([both, extractor.anchors(both)])
 
