@@ -146,6 +146,22 @@ def test_a_tall_texture_puts_its_planes_side_by_side():
     assert back.shape == (7, 3, 3) and np.abs(back.astype(int) - texels).max() <= 2
 
 
+def test_textures_up_to_a_megapixel_are_coded_carefully(monkeypatch):
+    """The AVIF encoder's effort: the careful speed up to CAREFUL_TEXELS texels, the fast one
+    above (a 12-megapixel texture at the careful speed would take a minute); the careful speed
+    gives the smaller file."""
+    top = detail_codec.CAREFUL_TEXELS
+    assert detail_codec.avif_speed(1024, top // 1024) == detail_codec.AVIF_SPEED
+    assert detail_codec.avif_speed(1024, top // 1024 + 1) == detail_codec.FAST_AVIF_SPEED
+    assert detail_codec.AVIF_SPEED < detail_codec.FAST_AVIF_SPEED
+    rng = np.random.default_rng(3)
+    smooth = np.cumsum(rng.normal(0, 4, (64, 96, 3)), axis=1)
+    texels = np.clip(512 + smooth - smooth.mean(), 0, 1023).astype(np.uint16)
+    careful = detail_codec.encode_texels(texels, 60)
+    monkeypatch.setattr(detail_codec, "CAREFUL_TEXELS", 0)
+    assert len(careful) < len(detail_codec.encode_texels(texels, 60))
+
+
 def _detail_map(data: bytes) -> dict:
     h = layout.parse_header(data)
     at = h.detail_offset + layout.DETAIL_SIZES.size

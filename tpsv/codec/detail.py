@@ -35,10 +35,15 @@ from .sections import _expect_bin, _expect_int, _expect_map, _packb
 FRAME_SCALE = 16
 CODEC = "avif"
 KEYS = ("codec", "width", "height", "quality", "frame", "mode", "image")
-#: AVIF encoder effort (libaom speed 0-10, lower is slower): at 6 the samples'
-#: textures take 0.1-0.4 s to code on this 2-core CPU (2048x2048: 4 s); slower
-#: settings were not measured.
-AVIF_SPEED = 6
+#: AVIF encoder effort (libaom speed 0-10, lower is slower and smaller), careful and fast. On
+#: the samples' textures (qualities 20-90, BD-PSNR against speed 6): speed 5 +0.31 to +0.56 dB
+#: for 3.5-4.5 times the time (astronaut at quality 75: 28974 B in 2.0-2.4 s against 30837 B
+#: in 0.5-0.7 s on this 2-core CPU), speed 4 +0.42 to +0.61 dB for 1-1.8 times more again,
+#: speed 7 -0.14 to -0.41 dB, speeds 8-9 -0.41 to -1.0 dB (docs/DESIGN.md, "Detail layer").
+AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
+#: Textures larger than this (texels) are coded at the fast speed: at speed 5 a 12-megapixel
+#: texture would take about a minute of the encoder.
+CAREFUL_TEXELS = 1 << 20
 #: AVIF quality at tpsv quality 100 (100 would be lossless: ~16 bpp).
 MAX_AVIF_QUALITY = 98
 DEPTH = 10
@@ -63,11 +68,18 @@ def image_shape(width: int, height: int) -> tuple[int, int]:
     return (3 * height, width) if plane_axis(width, height) == 0 else (height, 3 * width)
 
 
+def avif_speed(width: int, height: int) -> int:
+    """The AVIF encoder speed for a ``width x height`` texture: :data:`AVIF_SPEED` up to
+    :data:`CAREFUL_TEXELS` texels, :data:`FAST_AVIF_SPEED` above."""
+    return FAST_AVIF_SPEED if int(width) * int(height) > CAREFUL_TEXELS else AVIF_SPEED
+
+
 def encode_texels(texels: np.ndarray, quality: int) -> bytes:
-    """An AVIF file of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked) at tpsv ``quality``."""
-    params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, AVIF_SPEED,
-              cv2.IMWRITE_AVIF_DEPTH, DEPTH]
+    """An AVIF file of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked) at tpsv ``quality``
+    (the encoder's speed by the texture's size, :func:`avif_speed`)."""
     h, w = texels.shape[:2]
+    params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, avif_speed(w, h),
+              cv2.IMWRITE_AVIF_DEPTH, DEPTH]
     planes = np.ascontiguousarray(np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h)))
     try:
         ok, buf = cv2.imencode(".avif", planes, params)
