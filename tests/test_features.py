@@ -352,17 +352,20 @@ def test_lattice_monotone_covering_and_in_range():
             assert len(fs) <= prev_n and np.all(pick >= prev_pick)
         prev_n, prev_pick = len(fs), pick
     assert len(lat.features(0.5)) > len(lat.features(1e6))
-    # the coarsest that stands: 3 non-collinear cells of its own, where every coarser one has fewer
+    # the coarsest: one spacing of LATTICE_PX per region, a feature per non-empty cell
     top = len(lat.spacings) - 1
-    for r, j in enumerate(lat.region_spacing(1e6)):
+    assert np.all(lat.region_spacing(1e6) == top)
+    # standing alone: the coarsest with 3 non-collinear cells of its own, every coarser one has fewer
+    for r, j in enumerate(lat.region_spacing(1e6, standalone=True)):
         assert j == 0 or lat._stands(j, np.array([r]))[0]
         assert not any(lat._stands(k, np.array([r]))[0] for k in range(j + 1, top + 1))
 
 
 def test_a_lattice_needing_anchors_is_not_taken():
-    """A region too small for 3 cells of a coarse lattice takes the coarsest finer one that gives
-    it 3 (a coarse lattice would be padded with up to 9 anchors: more features, more bytes), so
-    the features, anchors included, never get fewer as T_super falls."""
+    """Standing alone (the pure vector quality ladder), a region too small for 3 cells of a coarse
+    lattice takes the coarsest finer one that gives it 3 (a coarse lattice would be padded with up
+    to 9 anchors: more features, more bytes), so the features, anchors included, never get fewer
+    as T_super falls."""
     from tpsv.encode.features import FeatureExtractor
     from tpsv.encode.vectorize import tpsv_features
 
@@ -371,17 +374,18 @@ def test_a_lattice_needing_anchors_is_not_taken():
     labels[:, 40:] = 1  # 24 px wide: one or two cells of the coarsest lattices
     g, lat = lattice_for(rgb, labels)
     ex = FeatureExtractor(rgb, g.index)
-    counts = [len(tpsv_features(g, ex, 1e9, t)) for t in (1e6, 60.0, 30.0, 15.0, 8.0, 4.0)]
+    counts = [len(tpsv_features(g, ex, 1e9, t, standalone=True)) for t in (1e6, 60.0, 30.0, 15.0, 8.0, 4.0)]
     assert counts == sorted(counts)
-    assert len(ex.anchors(lat.features(1e6))) == 0
+    assert len(ex.anchors(lat.features(1e6, standalone=True))) == 0
+    assert len(ex.anchors(lat.features(1e6))) > 0  # the coarsest lattice as it is: anchors fill in
 
 
 def test_lattice_features_are_cell_means_at_cell_centres():
     rgb = textured(32, 40)
     labels = np.zeros(rgb.shape[:2], np.int32)
     g, lat = lattice_for(rgb, labels)
-    fs = lat.features(1e6)  # the coarsest lattice that stands for the single region
-    d = lat.spacings[lat.region_spacing(1e6)[0]]
+    fs = lat.features(1e6)  # the coarsest lattice for the single region
+    d = lat.spacings[-1]
     nx, ny = lat._grid(d)[0]
     assert len(fs) == nx * ny
     st = g.pixel_st().reshape(-1, 2).astype(np.float64)

@@ -779,10 +779,10 @@ class LatticeGradation:
     mean colour of its pixels. The spacing adapts per region to ``T_super``:
     ``d`` is the largest of :data:`LATTICE_PX` at which the cells' RMS colour
     deviation (``2.55 * Lab`` units, as the superpixel variance), averaged over
-    the region's pixels, is at most ``T_super`` and whose cells give the region
-    3 non-collinear features (else anchors would pad it with more features than
-    a finer lattice has); the smallest spacing when none is. A smaller
-    ``T_super`` never gives a coarser lattice.
+    the region's pixels, is at most ``T_super`` (and, when asked, whose cells
+    give the region 3 non-collinear features: else anchors pad it with more
+    features than a finer lattice has); the smallest spacing when none is. A
+    smaller ``T_super`` never gives a coarser lattice.
 
     Cells holding a curvilinear feature are cut into ``k x k`` sub-cells no
     wider than ``edge_px``, so that an edge pair is never isolated among
@@ -924,7 +924,7 @@ class LatticeGradation:
         return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
     def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None,
-                       standalone: bool = True) -> np.ndarray:
+                       standalone: bool = False) -> np.ndarray:
         """Index into ``spacings`` per region for ``t_super``: the coarsest lattice whose cells'
         RMS colour deviation is within ``t_super`` and, with ``standalone``, that gives the
         region 3 non-collinear features by itself (:meth:`_stands`; the finest always
@@ -963,7 +963,7 @@ class LatticeGradation:
         return pos[self.pix[pos] == pixels]
 
     def features(self, t_super: float, edge_pixels: np.ndarray | None = None,
-                 max_spacing: np.ndarray | None = None, standalone: bool = True) -> FeatureSet:
+                 max_spacing: np.ndarray | None = None, standalone: bool = False) -> FeatureSet:
         """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided;
         each region's spacing at most its ``max_spacing`` (pixels, optional); ``standalone``: as
         :meth:`region_spacing`."""
@@ -975,7 +975,7 @@ class LatticeGradation:
             pair=np.full(n, -1, np.int32), st=st.astype(np.float64),
         )
 
-    def _regions(self, t_super, rows, max_spacing=None, standalone=True):
+    def _regions(self, t_super, rows, max_spacing=None, standalone=False):
         pick = self.region_spacing(t_super, max_spacing, standalone)
         parts = []
         for j in range(len(self.spacings)):

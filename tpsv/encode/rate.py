@@ -209,11 +209,8 @@ class Trials:
                     ab_step=steps[1])
         # per-pixel data is dropped as soon as its stage is done: the peak memory is the
         # largest stage's, not the sum of them (issue 12)
-        # the coarsest lattice as it is, anchors and all: small shapes drawn at 8x keep their colour
-        # to their borders (the synthetic shapes: 45.55 dB, against 45.23 dB for 6 % fewer bytes
-        # with lattices that stand alone)
         model = make_model(self.rgb, self.geometry, FeatureExtractor(self.rgb, self.geometry.index), p,
-                           fit=False, max_spacing=max_spacing, standalone=False)
+                           fit=False, max_spacing=max_spacing)
         self.geometry.forget("lattice")
         give_back()
         model = fit_model(self.rgb, self.geometry, model, base_fit_sub(w, h), BASE_FIT_ITERATIONS)
@@ -228,7 +225,9 @@ class Trials:
         key = (l_step, ab_step)
         if key not in self.cands:
             p = replace(self.params, l_step=l_step, ab_step=ab_step)
-            self.cands[key] = Candidates(self.rgb, self.geometry, p, device=self.device)
+            # lattices that stand alone: a coarser one padded with anchors made a lower quality a
+            # larger file (make_model)
+            self.cands[key] = Candidates(self.rgb, self.geometry, p, device=self.device, standalone=True)
         return self.cands[key]
 
     def __call__(self, quality: int):

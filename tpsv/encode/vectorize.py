@@ -437,7 +437,7 @@ def make_model(
     fit_sub: int = 1,
     fit_iterations: int = 6,
     max_spacing: np.ndarray | None = None,
-    standalone: bool = True,
+    standalone: bool = False,
 ) -> Model:
     """Stage 4: the model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
@@ -460,7 +460,11 @@ def make_model(
         The coarsest lattice spacing (pixels) each region may get (``"tpsv"`` scheme).
     standalone : bool
         Only lattices that give a region 3 non-collinear features by themselves
-        (``LatticeGradation.region_spacing``; else anchors fill in).
+        (``LatticeGradation.region_spacing``), as the pure vector quality ladder
+        asks: a coarser lattice padded with anchors made a lower quality a larger
+        file. The threshold modes and the detail layer's base keep the coarsest
+        lattice with its anchors, which hold small shapes' colour up to their
+        borders (docs/DESIGN.md, "Detail layer and rate control").
 
     Returns
     -------
@@ -510,7 +514,7 @@ def fit_model(rgb: np.ndarray, geometry: Geometry, model: Model, fit_sub: int = 
 
 
 def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float,
-                  max_spacing: np.ndarray | None = None, standalone: bool = True) -> FeatureSet:
+                  max_spacing: np.ndarray | None = None, standalone: bool = False) -> FeatureSet:
     """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known.
 
     Curvilinear pairs (one per ``CURVE_STEP`` block), the gradation lattice
@@ -639,8 +643,10 @@ class Candidates:
         Fit the colours (``"tpsv"`` scheme only).
     """
 
-    def __init__(self, rgb: np.ndarray, geometry: Geometry, params: Params, *, device: str = "cpu", fit: bool = True):
+    def __init__(self, rgb: np.ndarray, geometry: Geometry, params: Params, *, device: str = "cpu", fit: bool = True,
+                 standalone: bool = False):
         self.rgb = rgb
+        self.standalone = standalone  # lattices that stand alone (make_model)
         self.geometry = geometry
         self.params = params
         self.device = device
@@ -658,7 +664,8 @@ class Candidates:
 
     def model(self, t_canny: float, t_super: float) -> Model:
         """Stage 4: the candidate's features with their unfitted colours (quantised as stored when fitted)."""
-        model = make_model(self.rgb, self.geometry, self.extractor, self.params_for(t_canny, t_super), fit=False)
+        model = make_model(self.rgb, self.geometry, self.extractor, self.params_for(t_canny, t_super), fit=False,
+                           standalone=self.standalone)
         return codec.quantize(model) if self.fitted else model
 
     def fitted_colours(self, model: Model, final: bool) -> tuple:
