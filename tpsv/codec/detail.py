@@ -37,7 +37,7 @@ CODEC = "avif"
 KEYS = ("codec", "width", "height", "quality", "frame", "mode", "image")
 #: AVIF encoder effort (libaom speed 0-10, lower is slower and smaller), careful and fast. On
 #: the samples' textures (qualities 20-90, BD-PSNR against speed 6): speed 5 +0.31 to +0.56 dB
-#: for 3.5-4.5 times the time (astronaut at quality 75: 28974 B in 2.0-2.4 s against 30837 B
+#: for 3-5 times the time (astronaut at quality 75: 28974 B in 2.0-2.4 s against 30837 B
 #: in 0.5-0.7 s on this 2-core CPU), speed 4 +0.42 to +0.61 dB for 1-1.8 times more again,
 #: speed 7 -0.14 to -0.41 dB, speeds 8-9 -0.41 to -1.0 dB (docs/DESIGN.md, "Detail layer").
 AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
