@@ -939,14 +939,13 @@ class LatticeGradation:
         pick = np.zeros(R, np.int64)
         open_ = np.ones(R, bool)
         for j in range(len(self.spacings) - 1, -1, -1):
-            ask = open_ & allowed[j]
-            if standalone and j > 0 and ask.any():
+            ok = open_ & allowed[j]
+            if ok.any() and t_super <= self._rms_bound:
+                ok &= self.lattice(j)["region_rms"] <= t_super
+            if standalone and j > 0 and ok.any():
                 # a lattice that needs anchors is never taken while a finer one may stand
-                asked = np.flatnonzero(ask)
-                ask[asked] = self._stands(j, asked)
-            if not ask.any():
-                continue
-            ok = ask if t_super > self._rms_bound else ask & (self.lattice(j)["region_rms"] <= t_super)
+                asked = np.flatnonzero(ok)
+                ok[asked] = self._stands(j, asked)
             pick[ok] = j
             open_ &= ~ok
             if not open_.any():

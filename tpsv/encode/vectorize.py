@@ -641,12 +641,14 @@ class Candidates:
         Warp device of the renders.
     fit : bool
         Fit the colours (``"tpsv"`` scheme only).
+    standalone : bool
+        As :func:`make_model` (the pure vector quality ladder sets it).
     """
 
     def __init__(self, rgb: np.ndarray, geometry: Geometry, params: Params, *, device: str = "cpu", fit: bool = True,
                  standalone: bool = False):
         self.rgb = rgb
-        self.standalone = standalone  # lattices that stand alone (make_model)
+        self.standalone = standalone
         self.geometry = geometry
         self.params = params
         self.device = device
