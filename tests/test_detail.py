@@ -94,6 +94,19 @@ def test_max_bytes_is_never_exceeded(photo, textured):
         encode_quality(rgb, labels, max_bytes=100)
 
 
+def test_quality_search_finds_the_bound_and_codes_the_top_quality_last():
+    """The bisection over qualities gives the brute-force answer for every threshold, and tries
+    the top quality (the slowest texture to code) only when no lower one holds."""
+    for first in list(range(1, 101)) + [None]:
+        tried = []
+        ok = lambda q: tried.append(q) or (first is not None and q >= first)  # noqa: E731
+        assert rate._lowest(ok) == first
+        assert len(tried) <= rate.MAX_TRIALS
+        assert (rate.MAX_QUALITY in tried) == (first in (None, rate.MAX_QUALITY))
+        fits = lambda q: first is None or q < first  # noqa: E731 (true up to a point)
+        assert rate._highest(fits) == (rate.MAX_QUALITY if first is None else (first - 1 or None))
+
+
 def test_target_psnr_met_or_closest_reported(photo, textured):
     rgb, labels = photo
     out = encode_quality(rgb, labels, target_psnr=textured.psnr)

@@ -352,16 +352,20 @@ def progress_steps(target_psnr=None, max_bytes=None) -> int:
 
 
 def _lowest(ok) -> int | None:
-    """The lowest quality for which ``ok`` holds (assumed monotonic), or None."""
-    if not ok(MAX_QUALITY):
-        return None
-    lo, hi = MIN_QUALITY - 1, MAX_QUALITY  # ok(hi) holds; ok(lo) taken as false
+    """The lowest quality for which ``ok`` holds (assumed monotonic), or None.
+
+    The top quality, the slowest to code (astronaut's texture: 5.8 s at quality 100 against
+    1.7 s at 75), is tried only when no lower one holds: the same answer as trying it first.
+    """
+    lo, hi = MIN_QUALITY - 1, MAX_QUALITY  # ok(hi) taken as true until tried; ok(lo) as false
     while hi - lo > 1:
         mid = (lo + hi) // 2
         if ok(mid):
             hi = mid
         else:
             lo = mid
+    if hi == MAX_QUALITY and not ok(MAX_QUALITY):
+        return None
     return hi
 
 
