@@ -380,6 +380,26 @@ def test_a_lattice_needing_anchors_is_not_taken():
     assert len(ex.anchors(lat.features(1e6))) > 0  # the coarsest lattice as it is: anchors fill in
 
 
+def test_lattices_are_made_only_when_asked():
+    """A lattice is a pass over every pixel: the coarsest alone is made for a T_super that every
+    lattice passes (the quality modes' base), the finer ones as a smaller T_super asks, and the
+    features are those of lattices made all at once."""
+    rgb = textured()
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    labels[:, 40:] = 1
+    g, lat = lattice_for(rgb, labels)
+    lazy = lat.features(1e6)
+    assert sorted(lat._lattices) == [len(lat.spacings) - 1]
+    fine = lat.features(5.0)
+    assert len(lat._lattices) > 1
+    _, eager = lattice_for(rgb, labels)
+    for j in range(len(eager.spacings)):
+        eager.lattice(j)
+    for t, got in ((1e6, lazy), (5.0, fine)):
+        want = eager.features(t)
+        assert np.array_equal(got.st, want.st) and np.array_equal(got.lab, want.lab)
+
+
 def test_lattice_features_are_cell_means_at_cell_centres():
     rgb = textured(32, 40)
     labels = np.zeros(rgb.shape[:2], np.int32)
