@@ -53,7 +53,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths
+from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths, widest_sigma
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -583,10 +583,7 @@ class DeviceBorders:
         nr = max(len(model.regions), 1)
         keys, sigma = edge_widths(model, self.kx, self.ky)
         bmap = blur_map(model, self.kx, self.ky)
-        wide = float(sigma.max(initial=0.0))
-        if bmap is not None:
-            # any border may be as wide as the map's widest point
-            wide = max(wide, float(bmap[0].max(initial=0.0)))
+        wide = widest_sigma(sigma, bmap)
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
         self.reach_px = 0.5 + 3.0 * wide
         self.halo = int(np.ceil(self.reach_px)) + 1

@@ -107,6 +107,13 @@ def blur_map(model, kx: float, ky: float):
     return (np.asarray(bm.sigma, np.float64) * float(np.sqrt(kx * ky)), bm.cell * kx, bm.cell * ky)
 
 
+def widest_sigma(sigma: np.ndarray, bmap) -> float:
+    """The widest edge width (output px) of the pairs' ``sigma`` and a :func:`blur_map` (any border may be
+    as wide as the map's widest point): how far mixed pixels reach."""
+    wide = float(np.max(sigma, initial=0.0))
+    return wide if bmap is None else max(wide, float(bmap[0].max(initial=0.0)))
+
+
 def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear sample of a :func:`blur_map` at output points ``(x, y)`` (cell centres at half cells, edges
     clamped): the edge width there, output px."""
@@ -194,11 +201,8 @@ class Borders:
         self.n_regions = max(len(model.regions), 1)
         self.blur_keys, self.blur_sigma = edge_widths(model, self.kx, self.ky)
         self.blur_map = blur_map(model, self.kx, self.ky)
-        widest = float(self.blur_sigma.max(initial=0.0))
-        if self.blur_map is not None:
-            widest = max(widest, float(self.blur_map[0].max(initial=0.0)))
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
-        self.reach_px = 0.5 + 3.0 * widest
+        self.reach_px = 0.5 + 3.0 * widest_sigma(self.blur_sigma, self.blur_map)
         self.halo = int(np.ceil(self.reach_px)) + 1
         self.a, self.d = outline_pieces(model, self.width, self.height)
         self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
