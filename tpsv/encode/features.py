@@ -673,16 +673,7 @@ class FeatureExtractor:
         if R == 0:
             return FeatureSet.empty()
         reg = fs.region
-        n = np.bincount(reg, minlength=R).astype(np.float64)
-        safe = np.maximum(n, 1.0)
-        x, y = fs.xy[:, 0], fs.xy[:, 1]
-        mx = np.bincount(reg, x, R) / safe
-        my = np.bincount(reg, y, R) / safe
-        dx, dy = x - mx[reg], y - my[reg]
-        cxx = np.bincount(reg, dx * dx, R) / safe
-        cyy = np.bincount(reg, dy * dy, R) / safe
-        cxy = np.bincount(reg, dx * dy, R) / safe
-        det = cxx * cyy - cxy * cxy
+        n, det = region_spread(reg, fs.xy, R)
         npix = np.bincount(self.index.ravel(), minlength=R)
         bad = np.nonzero((npix > 0) & ((n < 3) | (det < 1e-4)) & ~((npix <= 2) & (n >= npix)))[0]
         if bad.size == 0:
@@ -904,16 +895,9 @@ class LatticeGradation:
             rows = np.flatnonzero(np.isin(self.reg, regions))
             cells = np.unique(self._cells(lat, rows))
             lat["region"] = np.repeat(np.arange(self.n_regions, dtype=np.int32), n[:, 0] * n[:, 1])
-        R = self.n_regions
         reg = lat["region"][cells].astype(np.int64)
-        xy = to_pixel_space(self.patches, reg, self._centres(lat, cells))
-        cnt = np.bincount(reg, minlength=R).astype(np.float64)
-        safe = np.maximum(cnt, 1.0)
-        mx, my = np.bincount(reg, xy[:, 0], R) / safe, np.bincount(reg, xy[:, 1], R) / safe
-        dx, dy = xy[:, 0] - mx[reg], xy[:, 1] - my[reg]
-        cxx, cyy = np.bincount(reg, dx * dx, R) / safe, np.bincount(reg, dy * dy, R) / safe
-        cxy = np.bincount(reg, dx * dy, R) / safe
-        return ((cnt >= 3) & (cxx * cyy - cxy * cxy >= 1e-4))[regions]
+        cnt, det = region_spread(reg, to_pixel_space(self.patches, reg, self._centres(lat, cells)), self.n_regions)
+        return ((cnt >= 3) & (det >= 1e-4))[regions]
 
     @staticmethod
     def _centres(lat: dict, cells: np.ndarray) -> np.ndarray:
@@ -1007,6 +991,27 @@ class LatticeGradation:
         nn = n[first].astype(np.float64)
         st = np.column_stack([(ij[first, 0] + 0.5) / nn[:, 0], (ij[first, 1] + 0.5) / nn[:, 1]])
         return st, r, stats["lab"]
+
+
+def region_spread(region: np.ndarray, xy: np.ndarray, n_regions: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per region, how many points ``xy`` (k, 2) it has and the determinant of their covariance (0:
+    collinear): :meth:`FeatureExtractor.anchors` asks 3 points and a determinant of ``1e-4`` of a region.
+
+    Returns
+    -------
+    count, det : ndarray (n_regions,) float64
+    """
+    R = n_regions
+    n = np.bincount(region, minlength=R).astype(np.float64)
+    safe = np.maximum(n, 1.0)
+    x, y = xy[:, 0], xy[:, 1]
+    mx = np.bincount(region, x, R) / safe
+    my = np.bincount(region, y, R) / safe
+    dx, dy = x - mx[region], y - my[region]
+    cxx = np.bincount(region, dx * dx, R) / safe
+    cyy = np.bincount(region, dy * dy, R) / safe
+    cxy = np.bincount(region, dx * dy, R) / safe
+    return n, cxx * cyy - cxy * cxy
 
 
 def cell_stats(cell: np.ndarray, n: int, col: np.ndarray, var_scale: float = 1.0) -> dict:
