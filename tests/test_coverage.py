@@ -40,24 +40,42 @@ def blob_model(w=48, h=36, n=6, seed=0, blur=None) -> Model:
 
 
 def exact_host(monkeypatch):
-    """Make the host measure each pixel to the nearest of its 64 nearest pieces: the nearest piece."""
-    nearest = Borders._nearest
-    monkeypatch.setattr(Borders, "_nearest", lambda self, p, k: nearest(self, p, 64))
+    """Make the host measure each pixel to its nearest border piece, not the nearest of a few."""
+    monkeypatch.setattr(Borders, "exact", True)
+    feet = Borders._feet
+    monkeypatch.setattr(Borders, "_feet", lambda self, p, k: feet(self, p, max(k, 64)))
 
 
-def tied(borders, pixels, W: int, y0: int = 0) -> np.ndarray:
-    """Whether each pixel's centre is equally near two pieces with different feet (either may give the region across)."""
-    p = np.column_stack([pixels % W + 0.5, pixels // W + y0 + 0.5])
+def tied(borders, pixels, W: int, index: np.ndarray) -> np.ndarray:
+    """Whether each pixel's centre is equally near two pieces with different feet (either may give the region across).
+
+    The pieces that count are those the rule measures to (``Borders._nearest_border``:
+    with another region just beyond, or within 0.75 px of a pixel beside another region; within
+    the region's limit; else all).
+    """
+    p = np.column_stack([pixels % W + 0.5, pixels // W + 0.5])
     w = p[:, None, :] - borders.a[None]
     t = np.clip((w * borders.d).sum(-1) / np.maximum((borders.d ** 2).sum(-1), 1e-300), 0.0, 1.0)
     foot = borders.a[None] + t[..., None] * borders.d[None]
     dist = np.hypot(*np.moveaxis(p[:, None, :] - foot, -1, 0))
+    mine = index.reshape(-1)[pixels]
+    ext = np.pad(index, ((0, 0), (1, 1)), mode="edge")
+    r = Borders._beyond(ext, 0, p[:, None, :], foot, dist, 0)
+    pad = np.pad(index, 1, mode="edge")
+    y, x = pixels // W, pixels % W
+    beside = np.zeros(len(pixels), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            nb = pad[1 + y + dy, 1 + x + dx]
+            beside |= (nb != mine) & (nb >= 0)
+    ok = (((dist <= 0.75) & beside[:, None]) | ((r != mine[:, None]) & (r >= 0))) & (dist < borders.limit[mine][:, None])
+    dist = np.where(ok.any(axis=1, keepdims=True), np.where(ok, dist, np.inf), dist)
     near = dist <= dist.min(axis=1, keepdims=True) + 1e-12
     spread = [np.ptp(f[k], axis=0).max() for f, k in zip(foot, near)]
     return np.array(spread) > 1e-9
 
 
-def differences(host, dev, borders=None, W=None) -> dict:
+def differences(host, dev, borders=None, index=None) -> dict:
     """How two border mixes differ: pixels in one only, and, over the pixels in both, other / alpha / xy.
 
     With ``borders``, pixels whose centre is as near two outlines (:func:`tied`; either
@@ -71,7 +89,8 @@ def differences(host, dev, borders=None, W=None) -> dict:
     same = ho[ih] == dev.other[jd]
     tie_one = tie_other = np.zeros(0, bool)
     if borders is not None:
-        tie_one, tie_other = tied(borders, one, W), tied(borders, common[~same], W)
+        W = index.shape[1]
+        tie_one, tie_other = tied(borders, one, W, index), tied(borders, common[~same], W, index)
     da = np.abs(ha[ih] - dev.alpha[jd])[same]
     return {
         "n": len(np.union1d(hp, dev.pixels)),
@@ -98,23 +117,23 @@ def test_equals_the_host_measuring_to_the_nearest_piece(seed, blur, scale, monke
     host = b.mix(idx)
     dev = DeviceBorders(m, W, H).mix(idx)
     assert len(host.pixels) > 0
-    diff = differences(host, dev, b, W)
+    diff = differences(host, dev, b, idx)
     assert diff["one_side"] == 0 and diff["other"] == 0, diff
     assert diff["alpha"] <= 1e-6 and diff["xy"] <= 1e-9, diff
 
 
 @pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 3.7), (2, 1.2, 8.0)])
 def test_the_host_as_it_is_differs_only_where_its_nearest_piece_is_not(seed, blur, scale):
-    """The host measures pixels off the 8-neighbours to the nearest of 3 pieces: a few come out too far."""
+    """The host measures pixels off the 8-neighbours to the nearest border of 4 pieces: a few come out too far."""
     m = blob_model(seed=seed, blur=blur)
     W, H = round(m.width * scale), round(m.height * scale)
     idx = region_index(m, W, H)
     b = Borders(m, W, H)
     host = b.mix(idx)
     dev = DeviceBorders(m, W, H).mix(idx)
-    diff = differences(host, dev, b, W)
+    diff = differences(host, dev, b, idx)
     assert diff["one_side"] + diff["other"] <= 0.002 * diff["n"], diff
-    assert diff["alpha_over"] <= 0.01 * diff["n"] and diff["alpha"] < 0.02, diff
+    assert diff["alpha_over"] <= 0.01 * diff["n"] and diff["alpha"] < 0.05, diff
     assert diff["xy"] <= 1e-9, diff
 
 
@@ -125,7 +144,7 @@ def test_sharp_borders_equal_the_host_as_it_is():
         W, H = round(m.width * scale), round(m.height * scale)
         idx = region_index(m, W, H)
         b = Borders(m, W, H)
-        diff = differences(b.mix(idx), DeviceBorders(m, W, H).mix(idx), b, W)
+        diff = differences(b.mix(idx), DeviceBorders(m, W, H).mix(idx), b, idx)
         assert diff["one_side"] == 0 and diff["other"] == 0 and diff["alpha"] <= 1e-6, diff
 
 
@@ -172,7 +191,7 @@ def test_pixels_of_no_region_and_threads(monkeypatch):
     one, two = db.mix(idx, threads=1), db.mix(idx, threads=2)
     for f in ("pixels", "other", "alpha", "xy"):
         assert np.array_equal(getattr(one, f), getattr(two, f))
-    diff = differences(host, one, b, W)
+    diff = differences(host, one, b, idx)
     assert diff["one_side"] == 0 and diff["other"] == 0 and diff["alpha"] <= 1e-6, diff
     assert (idx.reshape(-1)[one.pixels] >= 0).all() and (one.other >= 0).all()
 

@@ -14,8 +14,8 @@ region map already on the device, in four small launches and two prefix sums:
    borders: the pixels with an 8-neighbour of another region; blurred
    ones: the pixels a piece may lie within their region's limit of);
 2. their flat indices, compacted by a prefix sum of the groups' counts;
-3. one thread per such pixel: the nearest piece (an exact search of the
-   grid, row of cells by row of cells), the region across
+3. one thread per such pixel: the nearest border piece (an exact search of
+   the grid, row of cells by row of cells; ``Borders._nearest_border``), the region across
    (``Borders._across``), the pair's edge width (``Borders._sigma``), the
    coverage (``Borders._coverage``, Phi from ``wp.erf``, float64);
 4. the pixels that mix (``alpha < 1 - 1e-4``), compacted by a second prefix sum.
@@ -26,12 +26,13 @@ counts are read back to size the outputs (on CUDA, two synchronisations).
 
 Where it differs from the host, on purpose:
 
-* the host measures a pixel to the nearest of the few pieces nearest by
-  midpoint (:data:`~tpsv.rendering.borders.NEAREST`; 3 for pixels beyond the
-  8-neighbours of a blurred border, where that is often not the nearest
-  piece: the distance comes out a few hundredths of a pixel long); here
-  the nearest piece is found exactly. Coverages of such pixels differ by
-  up to ~2e-3, rarely the region across or whether the pixel mixes;
+* the host measures a pixel to the nearest border of the few pieces
+  nearest by midpoint (:data:`~tpsv.rendering.borders.NEAREST`;
+  :data:`~tpsv.rendering.borders.FAR_NEAREST` for pixels beyond the
+  8-neighbours of a blurred border, where that is often not the nearest:
+  the distance comes out a little long); here the nearest border piece is
+  found exactly. Coverages of such pixels differ by up to a few hundredths
+  (mostly under 1e-4), rarely the region across or whether the pixel mixes;
 * for blurred borders the host looks at the pixels within ``reach + 1``
   (chamfer distance) of an 8-neighbour pixel; here at every pixel that a
   piece may lie within its region's limit of. A pixel mixes in both only
@@ -53,7 +54,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths, widest_sigma
+from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths, region_limits, widest_sigma
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -159,9 +160,39 @@ def _gap(v: wp.float64, i: int, cell: int):
 
 
 @wp.func
+def _region(index: wp.array2d(dtype=wp.int32), r: int, x: int):
+    """Region at local row ``r``, column ``x``; rows and columns beyond the map repeat its edge."""
+    return index[wp.clamp(r, 0, index.shape[0] - 1), wp.clamp(x, 0, index.shape[1] - 1)]
+
+
+@wp.func
+def _beyond_point(px: wp.float64, py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64):
+    """A little beyond the foot ``f`` of the perpendicular from ``p`` (the mirror image of ``p`` within 0.75 px)."""
+    qx = wp.float64(2.0) * fx - px
+    qy = wp.float64(2.0) * fy - py
+    if dist > wp.float64(0.75):
+        m = wp.max(dist, wp.float64(1e-9))
+        qx = fx + wp.float64(0.75) * ((fx - px) / m)
+        qy = fy + wp.float64(0.75) * ((fy - py) / m)
+    return qx, qy
+
+
+@wp.func
+def _beyond(index: wp.array2d(dtype=wp.int32), iy0: int, px: wp.float64, py: wp.float64, fx: wp.float64,
+            fy: wp.float64, dist: wp.float64):
+    """Region a little beyond the foot ``f`` (``Borders._beyond``)."""
+    qx, qy = _beyond_point(px, py, fx, fy, dist)
+    return _region(index, int(wp.floor(qy)) - iy0, int(wp.floor(qx)))
+
+
+@wp.func
 def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
-             gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64):
+             gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64,
+             index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, free2: wp.float64):
     """Distance and foot of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else ``limit``).
+
+    A piece farther than ``sqrt(free2)`` counts only with another region
+    than ``mine`` just beyond it (:func:`_beyond`; ``Borders._nearest_border``).
 
     Rows of cells outwards from the pixel's, alternately above and below; a
     piece nearer than the best so far has its midpoint within ``best +
@@ -209,7 +240,11 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                         mx = wx - wp.float64(0.5) * dv[0]
                         my = wy - wp.float64(0.5) * dv[1]
                         m2 = mx * mx + my * my
-                        if d2 < best2 or m2 < bmid2:
+                        take = d2 < best2 or m2 < bmid2
+                        if take and d2 > free2:
+                            o = _beyond(index, iy0, px, py, qx, qy, wp.sqrt(d2))
+                            take = o != mine and o >= 0
+                        if take:
                             best2 = d2
                             bmid2 = m2
                             fx = qx
@@ -221,22 +256,10 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
 
 
 @wp.func
-def _region(index: wp.array2d(dtype=wp.int32), r: int, x: int):
-    """Region at local row ``r``, column ``x``; rows and columns beyond the map repeat its edge."""
-    return index[wp.clamp(r, 0, index.shape[0] - 1), wp.clamp(x, 0, index.shape[1] - 1)]
-
-
-@wp.func
 def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: int, px: wp.float64,
             py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64):
     """Region just beyond the pixel's nearest outline, else its nearest 8-neighbour of another region (-1: none)."""
-    # a little beyond the foot of the perpendicular (the mirror image for pixels on the outline)
-    qx = wp.float64(2.0) * fx - px
-    qy = wp.float64(2.0) * fy - py
-    if dist > wp.float64(0.75):
-        m = wp.max(dist, wp.float64(1e-9))
-        qx = fx + wp.float64(0.75) * ((fx - px) / m)
-        qy = fy + wp.float64(0.75) * ((fy - py) / m)
+    qx, qy = _beyond_point(px, py, fx, fy, dist)
     other = _region(index, int(wp.floor(qy)) - iy0, int(wp.floor(qx)))
     if other != mine and other >= 0:
         return other
@@ -450,10 +473,18 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     keep[i] = 0
     mine = index[y - iy0, x]
     lim = limit[mine]
-    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim)
+    px = wp.float64(x) + wp.float64(0.5)
+    py = wp.float64(y) + wp.float64(0.5)
+    # pieces within 0.75 px are borders of a pixel next to another region whatever lies beyond
+    free2 = wp.float64(-1.0)
+    if _next_to_other(index, y - iy0, x, mine) != 0:
+        free2 = wp.float64(0.5625)
+    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, free2)
+    if dist >= lim:
+        # no border piece: the nearest piece
+        dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine,
+                                wp.float64(1e300))
     if dist < lim:
-        px = wp.float64(x) + wp.float64(0.5)
-        py = wp.float64(y) + wp.float64(0.5)
         o = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
         if o >= 0:
             w = wp.float64(0.0)
@@ -484,38 +515,6 @@ def _compact(cand: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32), off
         alpha_out[j] = alpha[i]
         xy_out[j] = wp.vec2d((wp.float64(x) + wp.float64(0.5)) / kx,
                              (wp.float64(y0 + yy) + wp.float64(0.5)) / ky)
-
-
-@wp.kernel
-def _widest(keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
-            widest: wp.array(dtype=wp.float64)):
-    """Each region's widest border: blurred pair ``i`` widens both of its regions."""
-    i = wp.tid()
-    a = keys[i] / wp.int64(n_regions)
-    wp.atomic_max(widest, int(a), sigma[i])
-    wp.atomic_max(widest, int(keys[i] - a * wp.int64(n_regions)), sigma[i])
-
-
-@wp.kernel
-def _limit(widest: wp.array(dtype=wp.float64), reach: wp.float64, limit: wp.array(dtype=wp.float64)):
-    """Per region, a distance from its border beyond which none of its pixels mixes (at most ``reach``).
-
-    Coverage grows with the distance and shrinks with the edge width, so a
-    pixel of region ``r`` mixes (``alpha < 1 - 1e-4``) only nearer than where
-    the widest of ``r``'s borders reaches ``1 - 1e-4`` (by bisection, with
-    the coverage :func:`_measure` computes, plus a margin of 1e-6 px).
-    """
-    r = wp.tid()
-    s = widest[r]
-    lo = wp.float64(0.0)
-    hi = reach + wp.float64(1.0)
-    for _ in range(50):  # to ~1e-14 px
-        mid = wp.float64(0.5) * (lo + hi)
-        if _coverage(mid, s) < _MIXED:
-            lo = mid
-        else:
-            hi = mid
-    limit[r] = wp.min(hi + wp.float64(1e-6), reach)
 
 
 # --------------------------------------------------------------------------- host side
@@ -619,14 +618,7 @@ class DeviceBorders:
         dev = self.device
         keys_d = wp.array(keys, dtype=wp.int64, device=dev)
         sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
-        if bmap is not None:
-            widest = wp.array(np.full(nr, wide), dtype=wp.float64, device=dev)
-        else:
-            widest = wp.zeros(nr, dtype=wp.float64, device=dev)
-            if len(keys):
-                wp.launch(_widest, dim=len(keys), inputs=[keys_d, sigma_d, nr, widest], device=dev)
-        limit = wp.empty(nr, dtype=wp.float64, device=dev)
-        wp.launch(_limit, dim=nr, inputs=[widest, wp.float64(self.reach_px), limit], device=dev)
+        limit = wp.array(region_limits(nr, keys, sigma, bmap, self.reach_px), dtype=wp.float64, device=dev)
         self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, gw=gw, gh=gh, cell=cell, aw=aw,
                               acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
                               blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,

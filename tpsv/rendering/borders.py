@@ -30,7 +30,11 @@ Outlines are cut into pieces of at most :data:`PIECE_PX` output pixels
 midpoints go into a k-d tree; each border pixel measures its exact distance
 to the :data:`NEAREST` nearest pieces. The region across is the one found
 just beyond the nearest outline (else the pixel's nearest 8-neighbour of
-another region), so junctions of three regions mix the right pair.
+another region), so junctions of three regions mix the right pair. A piece
+farther than 0.75 px with the pixel's own region beyond it is no border for
+that pixel: an outline may hold a spike or sliver thinner than an output
+pixel, which no pixel centre samples, and measuring to it would leave a
+wedge of unmixed pixels in a blurred border.
 """
 
 from __future__ import annotations
@@ -49,6 +53,8 @@ PIECE_PX = 1.0
 MAX_PIECES = 1 << 21
 #: Pieces measured per border pixel.
 NEAREST = 8
+#: Pieces measured per pixel off the 8-neighbours of a blurred border (the far tail varies slowly).
+FAR_NEAREST = 4
 
 
 @dataclass
@@ -112,6 +118,43 @@ def widest_sigma(sigma: np.ndarray, bmap) -> float:
     as wide as the map's widest point): how far mixed pixels reach."""
     wide = float(np.max(sigma, initial=0.0))
     return wide if bmap is None else max(wide, float(bmap[0].max(initial=0.0)))
+
+
+def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, reach: float) -> np.ndarray:
+    """Per region, the distance (output px) from its border beyond which none of its pixels mixes.
+
+    Coverage grows with the distance and shrinks with the edge width, so a
+    pixel of region ``r`` mixes (coverage ``< 1 - 1e-4``) only nearer than
+    where the widest of ``r``'s borders reaches ``1 - 1e-4`` (found by
+    bisection, plus 1e-6 px), and never beyond ``reach``.
+
+    Parameters
+    ----------
+    n_regions : int
+    keys, sigma : ndarray
+        The blurred pairs and their widths (:func:`edge_widths`).
+    bmap : tuple or None
+        The :func:`blur_map` (every region as wide as its widest point).
+    reach : float
+
+    Returns
+    -------
+    ndarray (n_regions,) float64
+    """
+    widest = np.zeros(n_regions)
+    if bmap is not None:
+        widest[:] = widest_sigma(sigma, bmap)
+    elif keys.size:
+        np.maximum.at(widest, keys // n_regions, sigma)
+        np.maximum.at(widest, keys % n_regions, sigma)
+    lo = np.zeros(n_regions)
+    hi = np.full(n_regions, reach + 1.0)
+    for _ in range(50):  # to ~1e-14 px
+        mid = 0.5 * (lo + hi)
+        below = Borders._coverage(mid, widest) < 1.0 - 1e-4
+        lo = np.where(below, mid, lo)
+        hi = np.where(below, hi, mid)
+    return np.minimum(hi + 1e-6, reach)
 
 
 def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -192,6 +235,9 @@ class Borders:
         Output size.
     """
 
+    #: Measure every point to its truly nearest border piece (tests), not the nearest of a few.
+    exact = False
+
     def __init__(self, model, width: int, height: int):
         from scipy.spatial import cKDTree
 
@@ -204,8 +250,11 @@ class Borders:
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
         self.reach_px = 0.5 + 3.0 * widest_sigma(self.blur_sigma, self.blur_map)
         self.halo = int(np.ceil(self.reach_px)) + 1
+        self.limit = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map, self.reach_px)
         self.a, self.d = outline_pieces(model, self.width, self.height)
         self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
+        #: half the longest piece: no point of a piece is nearer than its midpoint less this
+        self.slack = 0.5 * float(np.hypot(*self.d.T).max(initial=0.0))
 
     def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> BorderMix:
         """The border pixels of rows ``y0 .. y0 + len(index)`` and their coverage.
@@ -259,19 +308,19 @@ class Borders:
             fy = fx = np.zeros(0, np.int64)
         if ys.size + fy.size == 0:
             return BorderMix.none()
-        p, f, dmin = self._nearest(np.column_stack([xs + 0.5, ys + y0 + 0.5]), NEAREST)
-        if fy.size:
-            pf, ff, df = self._nearest(np.column_stack([fx + 0.5, fy + y0 + 0.5]), 3)
-            p, f, dmin = np.vstack([p, pf]), np.vstack([f, ff]), np.concatenate([dmin, df])
-            ys, xs = np.concatenate([ys, fy]), np.concatenate([xs, fx])
-        keep = dmin < self.reach_px
+        ys, xs = np.concatenate([ys, fy]), np.concatenate([xs, fx])
+        p = np.column_stack([xs + 0.5, ys + y0 + 0.5])
+        mine = index[ys, xs]
+        k = np.r_[np.full(len(ys) - len(fy), NEAREST), np.full(len(fy), FAR_NEAREST)]
+        beside = np.arange(len(ys)) < len(ys) - len(fy)
+        f, dmin = self._nearest_border(ext, top, mine, p, k, beside, y0)
+        keep = dmin < self.limit[mine]
         if not keep.any():
             return BorderMix.none()
-        p, f, dmin, ys, xs = p[keep], f[keep], dmin[keep], ys[keep], xs[keep]
-        mine = index[ys, xs]
+        p, f, dmin, ys, xs, mine = p[keep], f[keep], dmin[keep], ys[keep], xs[keep], mine[keep]
         other = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
         ok = other >= 0
-        p, dmin, ys, xs, other, mine = p[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
+        p, f, dmin, ys, xs, other, mine = p[ok], f[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
         alpha = self._coverage(dmin, self._sigma(mine, other, f))
         mixed = alpha < 1.0 - 1e-4
         p, alpha, ys, xs, other = p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed]
@@ -281,21 +330,79 @@ class Borders:
 
     def _nearest(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(p, foot, distance)``: each point's foot on the nearest of its ``k`` nearest pieces (by midpoint)."""
-        k = min(k, self.tree.n)
         if not len(p):
             return p, p.copy(), np.zeros(0)
-        _, near = self.tree.query(p, k=k, workers=-1)
+        foot, dist, _ = self._feet(p, k)
+        best = np.argmin(dist, axis=1)
+        rows = np.arange(len(p))
+        return p, foot[rows, best], dist[rows, best]
+
+    def _nearest_border(self, ext, top, mine, p, k, beside, y0):
+        """``(foot, distance)`` of each point on its nearest border piece.
+
+        A piece is a border for the point only with another region just
+        beyond it (:meth:`_beyond`), or within 0.75 px of a point ``beside``
+        a pixel of another region (an 8-neighbour): a sliver of an outline
+        thinner than a pixel, which no pixel centre samples, is none (its
+        far side is the point's own region). Nor is a piece beyond the
+        region's :attr:`limit`. Each point is measured to the ``k[i]`` pieces
+        nearest it by midpoint; where none of those is a border, to 64, then 4
+        times as many, until one is or the pieces left lie beyond the limit
+        (with :attr:`exact`, also until the pieces left lie beyond the best);
+        where none is, the nearest piece.
+        """
+        n = len(p)
+        foot = np.zeros((n, 2))
+        dist = np.full(n, np.inf)
+        lim = self.limit[mine]
+        rows, kk = np.arange(n), k
+        while rows.size:
+            nxt = []
+            for kn in np.unique(kk):
+                r_ = rows[kk == kn]
+                f, d, far = self._feet(p[r_], int(kn))
+                m = mine[r_][:, None]
+                r = self._beyond(ext, top, p[r_][:, None, :], f, d, y0)
+                ok = (((d <= 0.75) & beside[r_][:, None]) | ((r != m) & (r >= 0))) & (d < lim[r_][:, None])
+                best = np.argmin(np.where(ok, d, np.inf), axis=1)
+                i = np.arange(len(r_))
+                found = ok[i, best]
+                foot[r_[found]] = f[i, best][found]
+                dist[r_[found]] = d[i, best][found]
+                # a piece nearer than the best so far (or the limit) has its midpoint within that + slack
+                bound = np.where(found, dist[r_], lim[r_]) if self.exact else np.where(found, -np.inf, lim[r_])
+                more = (far <= bound + self.slack) & (kn < self.tree.n)
+                nxt.append((r_[more], np.full(int(more.sum()), max(64, 4 * int(kn)))))
+            rows = np.concatenate([r for r, _ in nxt]) if nxt else np.zeros(0, np.int64)
+            kk = np.concatenate([v for _, v in nxt]) if nxt else np.zeros(0, np.int64)
+        todo = np.flatnonzero(~np.isfinite(dist))
+        if todo.size:
+            _, foot[todo], dist[todo] = self._nearest(p[todo], NEAREST)
+        return foot, dist
+
+    @staticmethod
+    def _beyond(ext, top, p, f, dist, y0):
+        """Region a little beyond feet ``f`` seen from ``p`` (the mirror image of ``p`` within 0.75 px)."""
+        H, W = ext.shape[0], ext.shape[1] - 2
+        away = (f - p) / np.maximum(dist, 1e-9)[..., None]
+        q = np.where((dist > 0.75)[..., None], f + 0.75 * away, 2.0 * f - p)
+        qx = np.clip(np.floor(q[..., 0]).astype(np.int64), -1, W)
+        qy = np.clip(np.floor(q[..., 1]).astype(np.int64) - y0 + top, 0, H - 1)
+        return ext[qy, qx + 1]
+
+    def _feet(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Feet ``(n, k, 2)`` and distances ``(n, k)`` of each point on its ``k`` pieces nearest by
+        midpoint, and the distance to the farthest of those midpoints ``(n,)``."""
+        k = min(k, self.tree.n)
+        mid, near = self.tree.query(p, k=k, workers=-1)
         near = near.reshape(len(p), k)
-        a = self.a[near]  # (n, k, 2)
+        a = self.a[near]
         d = self.d[near]
         w = p[:, None, :] - a
         t = np.clip((w * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
         foot = a + t[..., None] * d
         off = p[:, None, :] - foot
-        dist = np.sqrt(off[..., 0] ** 2 + off[..., 1] ** 2)
-        best = np.argmin(dist, axis=1)
-        rows = np.arange(len(p))
-        return p, foot[rows, best], dist[rows, best]
+        return foot, np.sqrt(off[..., 0] ** 2 + off[..., 1] ** 2), np.asarray(mid).reshape(len(p), k)[:, -1]
 
     def _sigma(self, a: np.ndarray, b: np.ndarray, foot: np.ndarray) -> np.ndarray:
         """Edge width (output px) of the border between regions ``a`` and ``b`` at its points ``foot``
@@ -353,5 +460,5 @@ class Borders:
         return other
 
 
-__all__ = ["BorderMix", "Borders", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
-           "piece_counts"]
+__all__ = ["BorderMix", "Borders", "FAR_NEAREST", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
+           "piece_counts", "region_limits"]
