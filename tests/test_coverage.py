@@ -12,7 +12,7 @@ from tpsv.gpu.coverage import APART_CELL, MAX_CELLS, DeviceBorders, border_mix
 from tpsv.gpu.pieces import DevicePieces, apart_host, one_of_each
 from tpsv.model import Features, Model, Params
 from tpsv.rendering import borders as hborders
-from tpsv.rendering.borders import Borders, outline_pieces
+from tpsv.rendering.borders import BorderMix, Borders, outline_pieces
 from tpsv.rendering.pixelmap import region_index
 
 
@@ -46,12 +46,13 @@ def exact_host(monkeypatch):
     monkeypatch.setattr(Borders, "_feet", lambda self, p, k: feet(self, p, max(k, 64)))
 
 
-def tied(borders, pixels, W: int, index: np.ndarray) -> np.ndarray:
+def tied(borders, pixels, W: int, index: np.ndarray, excl: np.ndarray | None = None) -> np.ndarray:
     """Whether each pixel's centre is equally near two pieces with different feet (either may give the region across).
 
     The pieces that count are those the rule measures to (``Borders._nearest_border``:
     with another region just beyond, or within 0.75 px of a pixel beside another region; within
-    the region's limit; else all).
+    the region's limit; else all). With ``excl`` (a region per pixel), those of the second border:
+    with another region than the pixel's and ``excl`` just beyond.
     """
     p = np.column_stack([pixels % W + 0.5, pixels // W + 0.5])
     w = p[:, None, :] - borders.a[None]
@@ -61,42 +62,53 @@ def tied(borders, pixels, W: int, index: np.ndarray) -> np.ndarray:
     mine = index.reshape(-1)[pixels]
     ext = np.pad(index, ((0, 0), (1, 1)), mode="edge")
     r = Borders._beyond(ext, 0, p[:, None, :], foot, dist, 0)
-    pad = np.pad(index, 1, mode="edge")
-    y, x = pixels // W, pixels % W
-    beside = np.zeros(len(pixels), bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            nb = pad[1 + y + dy, 1 + x + dx]
-            beside |= (nb != mine) & (nb >= 0)
-    ok = (((dist <= 0.75) & beside[:, None]) | ((r != mine[:, None]) & (r >= 0))) & (dist < borders.limit[mine][:, None])
+    within = dist < borders.limit[mine][:, None]
+    if excl is None:
+        pad = np.pad(index, 1, mode="edge")
+        y, x = pixels // W, pixels % W
+        beside = np.zeros(len(pixels), bool)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                nb = pad[1 + y + dy, 1 + x + dx]
+                beside |= (nb != mine) & (nb >= 0)
+        ok = (((dist <= 0.75) & beside[:, None]) | ((r != mine[:, None]) & (r >= 0))) & within
+    else:
+        ok = (r != mine[:, None]) & (r != excl[:, None]) & (r >= 0) & within
     dist = np.where(ok.any(axis=1, keepdims=True), np.where(ok, dist, np.inf), dist)
     near = dist <= dist.min(axis=1, keepdims=True) + 1e-12
-    spread = [np.ptp(f[k], axis=0).max() for f, k in zip(foot, near)]
+    spread = [np.ptp(f[k], axis=0).max() if k.sum() > 1 else 0.0 for f, k in zip(foot, near)]
     return np.array(spread) > 1e-9
 
 
 def differences(host, dev, borders=None, index=None) -> dict:
-    """How two border mixes differ: pixels in one only, and, over the pixels in both, other / alpha / xy.
+    """How two border mixes differ: pixels in one only, and, over the pixels in both, the regions across
+    (``other``: either differs) and the shares (``alpha``: the larger difference of the two) and xy.
 
     With ``borders``, pixels whose centre is as near two outlines (:func:`tied`; either
-    gives the region across) count as ``ties``, not as differences.
+    gives the region across, and its direction the shares) count as ``ties``, not as differences.
     """
     assert np.all(np.diff(dev.pixels) > 0), "device pixels are not in increasing order"
     o = np.argsort(host.pixels)
-    hp, ho, ha, hxy = host.pixels[o], host.other[o], host.alpha[o], host.xy[o]
+    hp, ho, hxy = host.pixels[o], host.other[o], host.xy[o]
     common, ih, jd = np.intersect1d(hp, dev.pixels, return_indices=True)
     one = np.setxor1d(hp, dev.pixels)
     same = ho[ih] == dev.other[jd]
+    same2 = host.other2[o][ih] == dev.other2[jd]
+    da = np.maximum(np.abs(host.alpha[o][ih] - dev.alpha[jd]), np.abs(host.alpha2[o][ih] - dev.alpha2[jd]))
     tie_one = tie_other = np.zeros(0, bool)
+    excused = np.zeros(len(common), bool)
     if borders is not None:
         W = index.shape[1]
         tie_one, tie_other = tied(borders, one, W, index), tied(borders, common[~same], W, index)
-    da = np.abs(ha[ih] - dev.alpha[jd])[same]
+        odd = np.flatnonzero(same & (~same2 | (da > 1e-6)))
+        excused[odd] = tied(borders, common[odd], W, index) | tied(borders, common[odd], W, index, ho[ih][odd])
+    differ2 = same & ~same2 & ~excused
+    da = da[same & same2 & ~excused]
     return {
         "n": len(np.union1d(hp, dev.pixels)),
         "one_side": int(len(one) - tie_one.sum()),
-        "other": int((~same).sum() - tie_other.sum()),
-        "ties": int(tie_one.sum() + tie_other.sum()),
+        "other": int((~same).sum() - tie_other.sum() + differ2.sum()),
+        "ties": int(tie_one.sum() + tie_other.sum() + excused.sum()),
         "alpha": float(da.max(initial=0.0)),
         "alpha_over": int((da > 1e-4).sum()),
         "xy": float(np.abs(hxy[ih] - dev.xy[jd]).max(initial=0.0)),
@@ -119,18 +131,27 @@ def test_equals_the_host_measuring_to_the_nearest_piece(seed, blur, scale, monke
     assert len(host.pixels) > 0
     diff = differences(host, dev, b, idx)
     assert diff["one_side"] == 0 and diff["other"] == 0, diff
-    assert diff["alpha"] <= 1e-6 and diff["xy"] <= 1e-9, diff
+    # (a second border's share depends on the angle to the first, which the device may round with FMA)
+    assert diff["alpha"] <= 1e-5 and diff["xy"] <= 1e-9, diff
+    assert blur is None or (host.other2 >= 0).any()
 
 
 @pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 3.7), (2, 1.2, 8.0)])
 def test_the_host_as_it_is_differs_only_where_its_nearest_piece_is_not(seed, blur, scale):
-    """The host measures pixels off the 8-neighbours to the nearest border of 4 pieces: a few come out too far."""
+    """The host measures pixels off the 8-neighbours to the nearest border of 4 pieces: a few come out too far.
+
+    (Compared where neither has a second border: its share turns on the direction to the first,
+    which a piece a little too far changes more.)
+    """
     m = blob_model(seed=seed, blur=blur)
     W, H = round(m.width * scale), round(m.height * scale)
     idx = region_index(m, W, H)
     b = Borders(m, W, H)
     host = b.mix(idx)
     dev = DeviceBorders(m, W, H).mix(idx)
+    two = np.union1d(host.pixels[host.other2 >= 0], dev.pixels[dev.other2 >= 0])
+    host, dev = (BorderMix(*(v[~np.isin(mix.pixels, two)] for v in (mix.pixels, mix.other, mix.alpha, mix.xy)))
+                 for mix in (host, dev))
     diff = differences(host, dev, b, idx)
     assert diff["one_side"] + diff["other"] <= 0.002 * diff["n"], diff
     assert diff["alpha_over"] <= 0.01 * diff["n"] and diff["alpha"] < 0.05, diff

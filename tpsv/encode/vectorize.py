@@ -231,7 +231,7 @@ class Geometry:
     def mixed_pixels(self) -> np.ndarray:
         """Flat indices of the pixels a border crosses at scale 1 (the renderer mixes them)."""
         mix = self.border_mix()
-        return mix.pixels[mix.alpha < MIXED_ALPHA]
+        return mix.pixels[mix.own < MIXED_ALPHA]
 
     def lattice(self, lab: np.ndarray) -> LatticeGradation:
         """The gradation lattices of the image of Lab colours ``lab`` (cached per image)."""

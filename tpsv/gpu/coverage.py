@@ -54,7 +54,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import BorderMix, Borders, blur_map, edge_widths, region_limits, widest_sigma
+from ..rendering.borders import SECOND_LEAST, BorderMix, Borders, blur_map, edge_widths, region_limits, widest_sigma
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -81,6 +81,7 @@ _INV_SQRT_2 = wp.constant(wp.float64(1.0 / np.sqrt(2.0)))
 #: outline into a small canvas: thousands).
 DENSE_PIECES = 16
 _MIXED = wp.constant(wp.float64(1.0 - 1e-4))
+_SECOND = wp.constant(wp.float64(1.0 - SECOND_LEAST))
 
 
 @dataclass
@@ -99,6 +100,8 @@ class PieceGrid:
         of its own: ``acell x acell`` pixels, ``aw`` a row; zeros for sharp borders).
     limit : wp.array (R,) float64
         A pixel of region ``r`` mixes only nearer than ``limit[r]`` to a piece.
+    limit2 : wp.array (R,) float64
+        The same for a second border (``Borders.limit2``).
     gw, gh, cell : int
         Grid size in cells, cell side in pixels.
     aw, acell : int
@@ -128,6 +131,7 @@ class PieceGrid:
     start: object
     apart: object
     limit: object
+    limit2: object
     gw: int
     gh: int
     cell: int
@@ -186,13 +190,47 @@ def _beyond(index: wp.array2d(dtype=wp.int32), iy0: int, px: wp.float64, py: wp.
 
 
 @wp.func
+def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp.float64, bmid2: wp.float64,
+           fx: wp.float64, fy: wp.float64, index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int,
+           free2: wp.float64):
+    """One piece of :func:`_nearest`'s search: the best so far ``(best2, bmid2, fx, fy)``, updated, and 1 if it was."""
+    wx = px - p0[0]
+    wy = py - p0[1]
+    # the host's expression (Borders._nearest), in its order
+    u = (wx * dv[0] + wy * dv[1]) / wp.max(dv[0] * dv[0] + dv[1] * dv[1], wp.float64(1e-300))
+    u = wp.clamp(u, wp.float64(0.0), wp.float64(1.0))
+    qx = p0[0] + u * dv[0]
+    qy = p0[1] + u * dv[1]
+    ox = px - qx
+    oy = py - qy
+    d2 = ox * ox + oy * oy
+    took = int(0)
+    if d2 <= best2:
+        # on a tie (a pixel centre as near two pieces) the piece whose middle is nearer
+        mx = wx - wp.float64(0.5) * dv[0]
+        my = wy - wp.float64(0.5) * dv[1]
+        m2 = mx * mx + my * my
+        take = d2 < best2 or m2 < bmid2
+        if take and d2 > free2:
+            o = _beyond(index, iy0, px, py, qx, qy, wp.sqrt(d2))
+            take = o != mine and o != excl and o >= 0
+        if take:
+            return d2, m2, qx, qy, 1
+    return best2, bmid2, fx, fy, took
+
+
+@wp.func
 def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64,
-             index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, free2: wp.float64):
+             index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int, free2: wp.float64,
+             masks: wp.array2d(dtype=wp.uint64), mrow0: int, two: wp.uint64, use_mask: int):
     """Distance and foot of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else ``limit``).
 
     A piece farther than ``sqrt(free2)`` counts only with another region
-    than ``mine`` just beyond it (:func:`_beyond`; ``Borders._nearest_border``).
+    than ``mine`` and ``excl`` just beyond it (:func:`_beyond`;
+    ``Borders._nearest_border``). With ``use_mask``, cells whose ``masks``
+    (row ``row - mrow0``; :func:`_cell_regions`) hold no region but those of
+    ``two`` are passed over: no piece in them has a third region beyond.
 
     Rows of cells outwards from the pixel's, alternately above and below; a
     piece nearer than the best so far has its midpoint within ``best +
@@ -222,34 +260,25 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                 x0 = wp.clamp(int(wp.floor((px - half) / wp.float64(cell))), 0, gw - 1)
                 x1 = wp.clamp(int(wp.floor((px + half) / wp.float64(cell))), 0, gw - 1)
                 found = int(0)
-                for n in range(start[row * gw + x0], start[row * gw + x1 + 1]):
-                    p0 = a[n]
-                    dv = d[n]
-                    wx = px - p0[0]
-                    wy = py - p0[1]
-                    # the host's expression (Borders._nearest), in its order
-                    u = (wx * dv[0] + wy * dv[1]) / wp.max(dv[0] * dv[0] + dv[1] * dv[1], wp.float64(1e-300))
-                    u = wp.clamp(u, wp.float64(0.0), wp.float64(1.0))
-                    qx = p0[0] + u * dv[0]
-                    qy = p0[1] + u * dv[1]
-                    ox = px - qx
-                    oy = py - qy
-                    d2 = ox * ox + oy * oy
-                    if d2 <= best2:
-                        # on a tie (a pixel centre as near two pieces) the piece whose middle is nearer
-                        mx = wx - wp.float64(0.5) * dv[0]
-                        my = wy - wp.float64(0.5) * dv[1]
-                        m2 = mx * mx + my * my
-                        take = d2 < best2 or m2 < bmid2
-                        if take and d2 > free2:
-                            o = _beyond(index, iy0, px, py, qx, qy, wp.sqrt(d2))
-                            take = o != mine and o >= 0
-                        if take:
-                            best2 = d2
-                            bmid2 = m2
-                            fx = qx
-                            fy = qy
-                            found = 1
+                if use_mask == 0:
+                    for n in range(start[row * gw + x0], start[row * gw + x1 + 1]):
+                        best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index, iy0,
+                                                            mine, excl, free2)
+                        found = found | took
+                else:
+                    for cx in range(x0, x1 + 1):
+                        m = wp.uint64(0)
+                        mr = row - mrow0
+                        if mr >= 0 and mr < masks.shape[0]:
+                            m = masks[mr, cx]
+                        else:
+                            m = ~two  # (beyond the masks' rows: every cell is looked at)
+                        # no region but mine and excl near the cell: no piece of it counts
+                        if (m & two) != m:
+                            for n in range(start[row * gw + cx], start[row * gw + cx + 1]):
+                                best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index,
+                                                                    iy0, mine, excl, free2)
+                                found = found | took
                 if found != 0:
                     best = wp.sqrt(best2)
     return best, fx, fy
@@ -258,15 +287,18 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
 @wp.func
 def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: int, px: wp.float64,
             py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64):
-    """Region just beyond the pixel's nearest outline, else its nearest 8-neighbour of another region (-1: none)."""
+    """Region just beyond the pixel's nearest outline, else its nearest 8-neighbour of another region (-1: none),
+    and the point it was read at (``Borders._across``)."""
     qx, qy = _beyond_point(px, py, fx, fy, dist)
     other = _region(index, int(wp.floor(qy)) - iy0, int(wp.floor(qx)))
     if other != mine and other >= 0:
-        return other
+        return other, qx, qy
     # the point beyond fell in the pixel's own region (an outline corner): the 8-neighbour
     # of another region whose centre is nearest that point, in the host's order on ties
     best = wp.float64(1e300)
     pick = int(-1)
+    tx = qx
+    ty = qy
     for n in range(8):
         dy = 0
         dx = 0
@@ -294,10 +326,12 @@ def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: i
         ex = wp.float64(x + dx) + wp.float64(0.5) - qx
         ey = wp.float64(y + dy) + wp.float64(0.5) - qy
         dd = wp.sqrt(ex * ex + ey * ey)
-        if r != mine and r >= 0 and dd < best:
+        if r != mine and r >= 0 and dd < best - wp.float64(1e-9):
             best = dd
             pick = r
-    return pick
+            tx = wp.float64(x + dx) + wp.float64(0.5)
+            ty = wp.float64(y + dy) + wp.float64(0.5)
+    return pick, tx, ty
 
 
 @wp.func
@@ -380,6 +414,37 @@ def _column(index: wp.array2d(dtype=wp.int32), ra: int, r: int, rb: int, x: int)
 
 
 @wp.kernel
+def _row_regions(index: wp.array2d(dtype=wp.int32), cell: int, edge: int, rows: wp.array2d(dtype=wp.uint64)):
+    """Which regions (bit ``r % 64``) each row of the map holds within ``edge`` px of each column of cells."""
+    r, j = wp.tid()
+    w = index.shape[1] - 1
+    m = wp.uint64(0)
+    for xx in range(wp.clamp(j * cell - edge, 0, w), wp.clamp((j + 1) * cell + edge - 1, 0, w) + 1):
+        v = index[r, xx]
+        if v >= 0:
+            m = m | (wp.uint64(1) << wp.uint64(v % 64))
+    rows[r, j] = m
+
+
+@wp.kernel
+def _cell_regions(rows: wp.array2d(dtype=wp.uint64), iy0: int, cell: int, row0: int, edge: int,
+                  masks: wp.array2d(dtype=wp.uint64)):
+    """Which regions (bit ``r % 64``) lie within ``edge`` px of each search cell of rows ``row0 ..``.
+
+    The region a little beyond any piece whose midpoint is in the cell is
+    one of them (``edge`` covers half the longest piece and 0.75 px); rows
+    and columns beyond the map repeat its edge, as :func:`_region` reads it.
+    """
+    i, j = wp.tid()
+    y0 = (row0 + i) * cell - edge
+    h = rows.shape[0] - 1
+    m = wp.uint64(0)
+    for yy in range(wp.clamp(y0 - iy0, 0, h), wp.clamp(y0 + cell + 2 * edge - 1 - iy0, 0, h) + 1):
+        m = m | rows[yy, j]
+    masks[i, j] = m
+
+
+@wp.kernel
 def _candidates(apart: wp.array(dtype=wp.float32), limit: wp.array(dtype=wp.float64), aw: int, acell: int,
                 blurred: int, index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, mask: wp.array(dtype=wp.int32),
                 count: wp.array(dtype=wp.int32)):
@@ -459,11 +524,13 @@ def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), off
 @wp.kernel
 def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
-             keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
+             limit2: wp.array(dtype=wp.float64), keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
              bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
-             keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32)):
-    """Each candidate: nearest piece, region across, coverage; ``keep`` 1 where it mixes."""
+             keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32),
+             other2: wp.array(dtype=wp.int32), alpha2: wp.array(dtype=wp.float32),
+             masks: wp.array2d(dtype=wp.uint64), mrow0: int):
+    """Each candidate: nearest border piece, region across, coverage, a second border; ``keep`` 1 where it mixes."""
     i = wp.tid()
     W = index.shape[1]
     p = cand[i]
@@ -479,13 +546,14 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     free2 = wp.float64(-1.0)
     if _next_to_other(index, y - iy0, x, mine) != 0:
         free2 = wp.float64(0.5625)
-    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, free2)
+    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1, free2, masks,
+                            mrow0, wp.uint64(0), 0)
     if dist >= lim:
         # no border piece: the nearest piece
-        dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine,
-                                wp.float64(1e300))
+        dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1,
+                                wp.float64(1e300), masks, mrow0, wp.uint64(0), 0)
     if dist < lim:
-        o = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
+        o, tx, ty = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
         if o >= 0:
             w = wp.float64(0.0)
             if has_map != 0:
@@ -496,14 +564,50 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
             if s < _MIXED:
                 keep[i] = 1
                 other[i] = o
-                alpha[i] = wp.float32(s)
+                # a second border (Borders._second)
+                o2 = int(-1)
+                a1 = s
+                a2 = wp.float64(1.0)
+                # (a second border is no nearer than the first: it counts only where the first does)
+                lim2 = limit2[mine]
+                if s >= _SECOND:
+                    lim2 = wp.float64(0.0)
+                two = (wp.uint64(1) << wp.uint64(mine % 64)) | (wp.uint64(1) << wp.uint64(o % 64))
+                dist2, gx, gy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
+                                         wp.float64(-1.0), masks, mrow0, two, 1)
+                if dist2 < lim2:
+                    r2 = _beyond(index, iy0, px, py, gx, gy, dist2)
+                    hx, hy = _beyond_point(px, py, gx, gy, dist2)
+                    v1x = tx - px
+                    v1y = ty - py
+                    v2x = hx - px
+                    v2y = hy - py
+                    dot = (v1x * v2x + v1y * v2y) / wp.max(wp.sqrt(v1x * v1x + v1y * v1y)
+                                                          * wp.sqrt(v2x * v2x + v2y * v2y), wp.float64(1e-300))
+                    w2 = wp.float64(0.0)
+                    if has_map != 0:
+                        w2 = _blur_at(bmap, bcw, bch, gx, gy)
+                    else:
+                        w2 = wp.max(_sigma(keys, sigma, n_regions, mine, r2), _sigma(keys, sigma, n_regions, o, r2))
+                    c2 = _coverage(dist2, w2)
+                    if c2 < _SECOND:
+                        gamma = wp.max(wp.float64(0.0), wp.float64(1.0) - s
+                                       - wp.float64(0.5) * (wp.float64(1.0) + dot) * (wp.float64(1.0) - c2))
+                        o2 = r2
+                        a1 = wp.float64(1.0) - gamma / wp.max(c2, wp.float64(1e-12))
+                        a2 = c2
+                alpha[i] = wp.float32(a1)
+                other2[i] = o2
+                alpha2[i] = wp.float32(a2)
 
 
 @wp.kernel
 def _compact(cand: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32), offs: wp.array(dtype=wp.int32),
-             other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32), W: int, y0: int, kx: wp.float64,
+             other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32), other2: wp.array(dtype=wp.int32),
+             alpha2: wp.array(dtype=wp.float32), W: int, y0: int, kx: wp.float64,
              ky: wp.float64, pixels_out: wp.array(dtype=wp.int32), other_out: wp.array(dtype=wp.int32),
-             alpha_out: wp.array(dtype=wp.float32), xy_out: wp.array(dtype=wp.vec2d)):
+             alpha_out: wp.array(dtype=wp.float32), other2_out: wp.array(dtype=wp.int32),
+             alpha2_out: wp.array(dtype=wp.float32), xy_out: wp.array(dtype=wp.vec2d)):
     i = wp.tid()
     if keep[i] != 0:
         j = offs[i] - 1
@@ -513,6 +617,8 @@ def _compact(cand: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32), off
         pixels_out[j] = p
         other_out[j] = other[i]
         alpha_out[j] = alpha[i]
+        other2_out[j] = other2[i]
+        alpha2_out[j] = alpha2[i]
         xy_out[j] = wp.vec2d((wp.float64(x) + wp.float64(0.5)) / kx,
                              (wp.float64(y0 + yy) + wp.float64(0.5)) / ky)
 
@@ -531,15 +637,21 @@ class DeviceBorderMix:
     other : wp.array (n,) int32
         Region across the border.
     alpha : wp.array (n,) float32
-        Coverage of the pixel's own region.
+        Share the pixel's own region keeps against the region across.
     xy : wp.array (n,) vec2d
         Pixel centres in the model's pixel space.
+    other2 : wp.array (n,) int32
+        Region across a second border, or -1.
+    alpha2 : wp.array (n,) float32
+        Share the pixel keeps against ``other2``.
     """
 
     pixels: object
     other: object
     alpha: object
     xy: object
+    other2: object
+    alpha2: object
 
     @property
     def n(self) -> int:
@@ -550,7 +662,8 @@ class DeviceBorderMix:
         if self.n == 0:
             return BorderMix.none()
         return BorderMix(pixels=self.pixels.numpy().copy(), other=self.other.numpy().copy(),
-                         alpha=self.alpha.numpy().copy(), xy=self.xy.numpy().reshape(-1, 2).astype(np.float64))
+                         alpha=self.alpha.numpy().copy(), xy=self.xy.numpy().reshape(-1, 2).astype(np.float64),
+                         other2=self.other2.numpy().copy(), alpha2=self.alpha2.numpy().copy())
 
 
 class DeviceBorders:
@@ -619,7 +732,9 @@ class DeviceBorders:
         keys_d = wp.array(keys, dtype=wp.int64, device=dev)
         sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
         limit = wp.array(region_limits(nr, keys, sigma, bmap, self.reach_px), dtype=wp.float64, device=dev)
-        self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, gw=gw, gh=gh, cell=cell, aw=aw,
+        limit2 = wp.array(region_limits(nr, keys, sigma, bmap, self.reach_px, SECOND_LEAST), dtype=wp.float64,
+                          device=dev)
+        self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell, aw=aw,
                               acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
                               blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,
                               bmap=wp.array(np.zeros((1, 1)) if bmap is None else bmap[0], dtype=wp.float64,
@@ -646,7 +761,8 @@ class DeviceBorders:
     def _empty(self) -> DeviceBorderMix:
         dev = self.device
         return DeviceBorderMix(wp.zeros(0, dtype=wp.int32, device=dev), wp.zeros(0, dtype=wp.int32, device=dev),
-                               wp.zeros(0, dtype=wp.float32, device=dev), wp.zeros(0, dtype=wp.vec2d, device=dev))
+                               wp.zeros(0, dtype=wp.float32, device=dev), wp.zeros(0, dtype=wp.vec2d, device=dev),
+                               wp.zeros(0, dtype=wp.int32, device=dev), wp.zeros(0, dtype=wp.float32, device=dev))
 
     def _with_halo(self, index_d, halo):
         """``index_d`` with the host rows ``halo = (above, below)`` joined on the device; rows above."""
@@ -733,14 +849,35 @@ class DeviceBorders:
 
         _launch_banded(_gather, n, n >= _BAND_MIN, dev, threads, launch_gather)
         del mask, count, offs
+        # the regions near each search cell of the rows the map covers (a second border's search passes over
+        # the cells of none but the pixel's two)
+        # (sharp borders: a second border lies within a pixel, its search is short: no masks)
+        h_ext = int(index_d.shape[0])
+        mrow0 = max(0, iy0 // g.cell)
+        mrow1 = min(g.gh - 1, (iy0 + h_ext - 1) // g.cell) if g.blurred else mrow0 - 1
+        masks = wp.empty((max(mrow1 - mrow0 + 1, 0), g.gw), dtype=wp.uint64, device=dev)
+        if masks.shape[0]:
+            edge = int(np.ceil(g.slack + 0.75)) + 1
+            rows_m = wp.empty((h_ext, g.gw), dtype=wp.uint64, device=dev)
+
+            def launch_rows_m(r0, r1):
+                wp.launch(_row_regions, dim=(r1 - r0, g.gw), inputs=[index_d[r0:r1], g.cell, edge, rows_m[r0:r1]],
+                          device=dev)
+
+            _launch_banded(_row_regions, h_ext, h_ext * W >= _BAND_MIN, dev, threads, launch_rows_m)
+            wp.launch(_cell_regions, dim=masks.shape, inputs=[rows_m, iy0, g.cell, mrow0, edge, masks], device=dev)
+            del rows_m
         keep = wp.empty(nc, dtype=wp.int32, device=dev)
         other = wp.empty(nc, dtype=wp.int32, device=dev)
         alpha = wp.empty(nc, dtype=wp.float32, device=dev)
+        other2 = wp.empty(nc, dtype=wp.int32, device=dev)
+        alpha2 = wp.empty(nc, dtype=wp.float32, device=dev)
 
         def launch_measure(i0, i1):
-            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.keys, g.sigma, g.n_regions, g.bmap,
+            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.limit2, g.keys, g.sigma, g.n_regions, g.bmap,
                                                      wp.float64(g.bcw), wp.float64(g.bch), g.has_map, index_d, iy0, a,
-                                                     cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1]], device=dev)
+                                                     cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1],
+                                                     other2[i0:i1], alpha2[i0:i1], masks, mrow0], device=dev)
 
         _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
         koffs = wp.empty(nc, dtype=wp.int32, device=dev)
@@ -749,12 +886,14 @@ class DeviceBorders:
         if nk == 0:
             return self._empty()
         out = DeviceBorderMix(wp.empty(nk, dtype=wp.int32, device=dev), wp.empty(nk, dtype=wp.int32, device=dev),
-                              wp.empty(nk, dtype=wp.float32, device=dev), wp.empty(nk, dtype=wp.vec2d, device=dev))
+                              wp.empty(nk, dtype=wp.float32, device=dev), wp.empty(nk, dtype=wp.vec2d, device=dev),
+                              wp.empty(nk, dtype=wp.int32, device=dev), wp.empty(nk, dtype=wp.float32, device=dev))
 
         def launch_compact(i0, i1):
             wp.launch(_compact, dim=i1 - i0, inputs=[cand[i0:i1], keep[i0:i1], koffs[i0:i1], other[i0:i1], alpha[i0:i1],
-                                                     W, a, wp.float64(self.kx), wp.float64(self.ky), out.pixels,
-                                                     out.other, out.alpha, out.xy], device=dev)
+                                                     other2[i0:i1], alpha2[i0:i1], W, a, wp.float64(self.kx),
+                                                     wp.float64(self.ky), out.pixels, out.other, out.alpha,
+                                                     out.other2, out.alpha2, out.xy], device=dev)
 
         _launch_banded(_compact, nc, nc >= _BAND_MIN, dev, threads, launch_compact)
         return out
@@ -777,7 +916,7 @@ class DeviceBorders:
             return wp.array(np.ascontiguousarray(v), dtype=dtype, device=self.device)
 
         return DeviceBorderMix(up_(mix.pixels, wp.int32), up_(mix.other, wp.int32), up_(mix.alpha, wp.float32),
-                               up_(mix.xy, wp.vec2d))
+                               up_(mix.xy, wp.vec2d), up_(mix.other2, wp.int32), up_(mix.alpha2, wp.float32))
 
     def mix(self, index: np.ndarray, y0: int = 0, halo: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
             threads: int | None = None) -> BorderMix:

@@ -265,9 +265,13 @@ def _map_kernel(ps: PatchArrays, opt: Search, index: wp.array2d(dtype=wp.int32),
 
 @wp.kernel
 def _points_kernel(ps: PatchArrays, opt: Search, region: wp.array(dtype=wp.int32), xy: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec2)):
-    """Scattered points ``xy`` in regions ``region``."""
+    """Scattered points ``xy`` in regions ``region`` (``(0, 0)`` for region -1: none)."""
     k = wp.tid()
-    out[k] = _inverse(ps, opt, region[k], xy[k])
+    r = region[k]
+    if r >= 0:
+        out[k] = _inverse(ps, opt, r, xy[k])
+    else:
+        out[k] = wp.vec2(0.0, 0.0)
 
 
 @dataclass

@@ -235,11 +235,15 @@ def _mix_border(
     other: wp.array(dtype=wp.int32),
     st: wp.array(dtype=wp.vec2f),
     alpha: wp.array(dtype=wp.float32),
+    other2: wp.array(dtype=wp.int32),
+    st2: wp.array(dtype=wp.vec2f),
+    alpha2: wp.array(dtype=wp.float32),
     width: int,
     clamp: int,
     out: wp.array2d(dtype=wp.vec3f),
 ):
-    """Anti-aliased border pixels: ``alpha`` of the pixel's own colour, the rest the region across's."""
+    """Anti-aliased border pixels: ``alpha`` of the pixel's own colour, the rest the region across's; then
+    ``alpha2`` of that, the rest the region across a second border's (where ``other2`` is one)."""
     i = wp.tid()
     p = pixels[i]
     y = p / width
@@ -247,7 +251,13 @@ def _mix_border(
     q = st[i]
     across = lab_to_srgb(_blend(kb, other[i], q[0], q[1], clamp))
     a = alpha[i]
-    out[y, x] = a * out[y, x] + (1.0 - a) * across
+    c = a * out[y, x] + (1.0 - a) * across
+    o2 = other2[i]
+    if o2 >= 0:
+        q2 = st2[i]
+        a2 = alpha2[i]
+        c = a2 * c + (1.0 - a2) * lab_to_srgb(_blend(kb, o2, q2[0], q2[1], clamp))
+    out[y, x] = c
 
 
 @wp.kernel
@@ -471,9 +481,9 @@ def rasterise_dirty(
     return int(counts.numpy().sum())
 
 
-def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threads: int | None = None,
+def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2=None, threads: int | None = None,
                clamp: bool = True) -> wp.array:
-    """Mix the region across a border into border pixels of a rasterised frame, in place (sRGB).
+    """Mix the regions across borders into border pixels of a rasterised frame, in place (sRGB).
 
     Parameters
     ----------
@@ -481,14 +491,12 @@ def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threa
         Solved.
     out : wp.array2d(vec3f) (H, W)
         The frame from :func:`rasterise` (``MODE_SRGB``).
-    pixels : array_like (n,) int
-        Flat indices ``y * W + x`` of the border pixels.
-    other : array_like (n,) int
-        Region on the other side of the border.
-    st : array_like (n, 2)
-        Normalised ``(S, T)`` of each pixel in ``other``'s patch.
-    alpha : array_like (n,)
-        Coverage of the pixel's own region.
+    mix : BorderMix
+        The border pixels (flat indices ``y * W + x``), the regions across
+        and the shares (:class:`tpsv.rendering.borders.BorderMix`).
+    st, st2 : array_like (n, 2)
+        Normalised ``(S, T)`` of each pixel in ``mix.other``'s and ``mix.other2``'s
+        patch (``st2`` read only where ``other2`` is a region; None: none is).
     threads, clamp
         As :func:`rasterise`.
 
@@ -497,20 +505,25 @@ def mix_border(dk: DeviceKernels, out: wp.array, pixels, other, st, alpha, threa
     wp.array2d(dtype=vec3f)
         ``out``.
     """
-    n = int(np.size(pixels))
+    n = int(np.size(mix.pixels))
     if n == 0:
         return out
     dev = dk.device
-    pix_d = wp.array(np.ascontiguousarray(pixels, np.int32).reshape(-1), dtype=wp.int32, device=dev)
-    oth_d = wp.array(np.ascontiguousarray(other, np.int32).reshape(-1), dtype=wp.int32, device=dev)
-    st_d = wp.array(np.ascontiguousarray(st, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=dev)
-    al_d = wp.array(np.ascontiguousarray(alpha, np.float32).reshape(-1), dtype=wp.float32, device=dev)
-    return mix_border_device(dk, out, pix_d, oth_d, st_d, al_d, threads, clamp)
+
+    def up(v, dtype, shape=(-1,)):
+        return wp.array(np.ascontiguousarray(v).reshape(shape), dtype=dtype, device=dev)
+
+    st2 = np.zeros((n, 2), np.float32) if st2 is None else np.asarray(st2, np.float32)
+    return mix_border_device(dk, out, up(mix.pixels.astype(np.int32), wp.int32), up(mix.other.astype(np.int32), wp.int32),
+                             up(np.asarray(st, np.float32), wp.vec2f, (-1, 2)), up(mix.alpha.astype(np.float32), wp.float32),
+                             up(mix.other2.astype(np.int32), wp.int32), up(st2, wp.vec2f, (-1, 2)),
+                             up(mix.alpha2.astype(np.float32), wp.float32), threads, clamp)
 
 
-def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, threads: int | None = None,
-                      clamp: bool = True) -> wp.array:
-    """:func:`mix_border` of border pixels already on the device (``int32``, ``int32``, ``vec2f``, ``float32``)."""
+def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, oth2_d, st2_d, al2_d,
+                      threads: int | None = None, clamp: bool = True) -> wp.array:
+    """:func:`mix_border` of border pixels already on the device (``int32``, ``int32``, ``vec2f``, ``float32``,
+    and the same for the second border)."""
     n = int(pix_d.shape[0])
     if n == 0:
         return out
@@ -518,8 +531,8 @@ def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d
     W = out.shape[1]
 
     def launch(a, b):
-        wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, pix_d[a:b], oth_d[a:b], st_d[a:b], al_d[a:b], int(W),
-                                                  int(clamp), out], device=dev)
+        wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, pix_d[a:b], oth_d[a:b], st_d[a:b], al_d[a:b], oth2_d[a:b],
+                                                  st2_d[a:b], al2_d[a:b], int(W), int(clamp), out], device=dev)
 
     _launch_banded(_mix_border, n, n >= _BAND_MIN, dev, threads, launch)
     return out

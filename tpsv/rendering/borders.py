@@ -53,6 +53,11 @@ PIECE_PX = 1.0
 MAX_PIECES = 1 << 21
 #: Pieces measured per border pixel.
 NEAREST = 8
+#: Least share of a pixel a second border's region takes (less is left out: the search for a second
+#: border covers every piece within its reach, so its reach is kept short).
+SECOND_LEAST = 1.0 / 512.0
+#: Cell side (output px) of the region masks that tell which pixels may have a second border (:func:`third_near`).
+MASK_CELL = 8
 #: Pieces measured per pixel off the 8-neighbours of a blurred border (the far tail varies slowly).
 FAR_NEAREST = 4
 
@@ -68,19 +73,113 @@ class BorderMix:
     other : ndarray (n,) int32
         Region across the border.
     alpha : ndarray (n,) float32
-        Coverage of the pixel's own region, in ``[0.5, 1)``.
+        Share of the pixel its own region keeps against the region across
+        (its coverage, in ``[0.5, 1)``, where ``other2`` is -1).
     xy : ndarray (n, 2) float64
         Pixel centres in the model's pixel space.
+    other2 : ndarray (n,) int32
+        Region across a second border (a sliver's other side, the region
+        beyond a sliver), or -1.
+    alpha2 : ndarray (n,) float32
+        Share the pixel keeps against ``other2`` (1 without one): the
+        colour is ``alpha2 * (alpha * own + (1 - alpha) * across) + (1 -
+        alpha2) * across2`` (:func:`shares`).
     """
 
     pixels: np.ndarray
     other: np.ndarray
     alpha: np.ndarray
     xy: np.ndarray
+    other2: np.ndarray | None = None
+    alpha2: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.other2 is None:
+            self.other2 = np.full(len(self.pixels), -1, np.int32)
+        if self.alpha2 is None:
+            self.alpha2 = np.ones(len(self.pixels), np.float32)
+
+    @property
+    def own(self) -> np.ndarray:
+        """Share of each pixel its own region covers."""
+        return self.alpha * self.alpha2
 
     @classmethod
     def none(cls) -> "BorderMix":
         return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros((0, 2)))
+
+
+def shares(c1: np.ndarray, c2: np.ndarray, dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How a pixel mixes the regions across its two nearest borders: ``(alpha, alpha2)`` of :class:`BorderMix`.
+
+    ``c1`` and ``c2`` are the coverages each border alone leaves the pixel
+    (:meth:`Borders._coverage`; border 1 the nearer), ``dot`` the cosine of
+    the angle between the directions from the pixel to the two borders. The
+    region across border 2 takes ``1 - c2`` of the pixel; the one across
+    border 1 takes ``1 - c1`` where the borders face each other (``dot =
+    -1``: the pixel's region is a strip between them, exact for a blurred
+    strip), ``c2 - c1`` where border 2 is the far side of the region across
+    border 1 (``dot = 1``), linearly between; the pixel's own region the
+    rest. So a sliver region narrower than its edges are wide mixes both
+    neighbours, the same on both sides of its middle, and a pixel beside it
+    sees the region beyond it too.
+
+    Returns
+    -------
+    alpha, alpha2 : ndarray
+        Composited in two steps: ``alpha2 * (alpha * own + (1 - alpha) * across)
+        + (1 - alpha2) * across2``.
+    """
+    beta = 1.0 - c2
+    gamma = np.maximum(0.0, 1.0 - c1 - 0.5 * (1.0 + dot) * beta)
+    return 1.0 - gamma / np.maximum(c2, 1e-12), c2
+
+
+def near_cells(reach: float) -> tuple[int, int]:
+    """``(cell, k)`` of :func:`third_near` for a search ``reach`` (output px): cells of :data:`MASK_CELL`
+    pixels, ``k`` cells each side covering the reach and the pixel a point beyond it falls in."""
+    return MASK_CELL, int(np.ceil((reach + 1.0) / MASK_CELL))
+
+
+def third_near(index: np.ndarray, cell: int, k: int, rows: np.ndarray, cols: np.ndarray, mine: np.ndarray,
+               other: np.ndarray) -> np.ndarray:
+    """Whether a region other than ``mine`` and ``other`` may have a pixel within ``k`` cells of each pixel.
+
+    Each cell of ``cell x cell`` pixels of the region map ``index`` gets a
+    64-bit mask of its regions (bit ``r % 64``: two regions may share a
+    bit, so the answer errs only towards yes); a pixel reads the union of
+    the masks of the cells within ``k`` of its own. The device computes the
+    same masks (:func:`tpsv.gpu.coverage._region_masks`).
+
+    Parameters
+    ----------
+    index : ndarray (h, W) int32
+        Regions (-1: none).
+    cell, k : int
+        From :func:`near_cells`.
+    rows, cols : ndarray (n,) int
+        Pixels, rows of ``index``.
+    mine, other : ndarray (n,) int
+        Their regions and the regions across.
+
+    Returns
+    -------
+    ndarray (n,) bool
+    """
+    h, W = index.shape
+    gh, gw = -(-h // cell), -(-W // cell)
+    pad = np.full((gh * cell, gw * cell), -1, np.int64)
+    pad[:h, :W] = index
+    bits = np.where(pad >= 0, np.left_shift(np.uint64(1), (pad % 64).astype(np.uint64)), np.uint64(0))
+    masks = np.bitwise_or.reduce(bits.reshape(gh, cell, gw, cell), axis=(1, 3))
+    wide = np.zeros((gh + 2 * k, gw + 2 * k), np.uint64)
+    for a in range(2 * k + 1):
+        for b in range(2 * k + 1):
+            wide[a:a + gh, b:b + gw] |= masks
+    near = wide[k:k + gh, k:k + gw][rows // cell, cols // cell]
+    two = np.left_shift(np.uint64(1), (mine % 64).astype(np.uint64)) | np.left_shift(np.uint64(1),
+                                                                                     (other % 64).astype(np.uint64))
+    return (near & ~two) != 0
 
 
 def edge_widths(model, kx: float, ky: float) -> tuple[np.ndarray, np.ndarray]:
@@ -120,12 +219,13 @@ def widest_sigma(sigma: np.ndarray, bmap) -> float:
     return wide if bmap is None else max(wide, float(bmap[0].max(initial=0.0)))
 
 
-def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, reach: float) -> np.ndarray:
+def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, reach: float,
+                  least: float = 1e-4) -> np.ndarray:
     """Per region, the distance (output px) from its border beyond which none of its pixels mixes.
 
     Coverage grows with the distance and shrinks with the edge width, so a
-    pixel of region ``r`` mixes (coverage ``< 1 - 1e-4``) only nearer than
-    where the widest of ``r``'s borders reaches ``1 - 1e-4`` (found by
+    pixel of region ``r`` mixes (coverage ``< 1 - least``) only nearer than
+    where the widest of ``r``'s borders reaches ``1 - least`` (found by
     bisection, plus 1e-6 px), and never beyond ``reach``.
 
     Parameters
@@ -136,6 +236,8 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
     bmap : tuple or None
         The :func:`blur_map` (every region as wide as its widest point).
     reach : float
+    least : float
+        The least share of a pixel that counts.
 
     Returns
     -------
@@ -151,7 +253,7 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
     hi = np.full(n_regions, reach + 1.0)
     for _ in range(50):  # to ~1e-14 px
         mid = 0.5 * (lo + hi)
-        below = Borders._coverage(mid, widest) < 1.0 - 1e-4
+        below = Borders._coverage(mid, widest) < 1.0 - least
         lo = np.where(below, mid, lo)
         hi = np.where(below, hi, mid)
     return np.minimum(hi + 1e-6, reach)
@@ -251,6 +353,9 @@ class Borders:
         self.reach_px = 0.5 + 3.0 * widest_sigma(self.blur_sigma, self.blur_map)
         self.halo = int(np.ceil(self.reach_px)) + 1
         self.limit = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map, self.reach_px)
+        #: the same for a second border (:meth:`_second`), whose share counts from :data:`SECOND_LEAST`
+        self.limit2 = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map, self.reach_px,
+                                    SECOND_LEAST)
         self.a, self.d = outline_pieces(model, self.width, self.height)
         self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
         #: half the longest piece: no point of a piece is nearer than its midpoint less this
@@ -318,15 +423,52 @@ class Borders:
         if not keep.any():
             return BorderMix.none()
         p, f, dmin, ys, xs, mine = p[keep], f[keep], dmin[keep], ys[keep], xs[keep], mine[keep]
-        other = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
+        other, toward = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
         ok = other >= 0
-        p, f, dmin, ys, xs, other, mine = p[ok], f[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok]
+        p, f, dmin, ys, xs, other, mine, toward = (p[ok], f[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok],
+                                                   toward[ok])
         alpha = self._coverage(dmin, self._sigma(mine, other, f))
         mixed = alpha < 1.0 - 1e-4
-        p, alpha, ys, xs, other = p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed]
+        p, alpha, ys, xs, other, mine, toward = (p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed],
+                                                 mine[mixed], toward[mixed])
+        other2, alpha, alpha2 = self._second(ext, top, mine, other, p, toward, alpha, ys, xs, y0)
         xy = np.column_stack([p[:, 0] / self.kx, p[:, 1] / self.ky])
         return BorderMix(pixels=(ys * W + xs).astype(np.int32), other=other.astype(np.int32),
-                         alpha=alpha.astype(np.float32), xy=xy)
+                         alpha=alpha.astype(np.float32), xy=xy, other2=other2.astype(np.int32),
+                         alpha2=alpha2.astype(np.float32))
+
+    def _second(self, ext, top, mine, other, p, toward, c1, ys, xs, y0):
+        """The region across a second border of each mixed pixel: ``(other2, alpha, alpha2)``.
+
+        See :func:`shares`; ``other2`` -1 (and ``alpha`` the coverage ``c1``,
+        ``alpha2`` 1) where no second border is near enough to matter. Only
+        pixels with a third region's pixel near (:func:`third_near`), whose
+        first border leaves them at least :data:`SECOND_LEAST`, are searched.
+        The directions across are to the points where the regions across were
+        read (``toward`` for the first border, from :meth:`_across`).
+        """
+        n = len(p)
+        other2 = np.full(n, -1, np.int64)
+        alpha, alpha2 = c1.copy(), np.ones(n)
+        if not n:
+            return other2, alpha, alpha2
+        cell, k = near_cells(float(self.limit2.max()))
+        # (a second border is no nearer than the first: it counts only where the first does)
+        look = np.flatnonzero(third_near(ext[:, 1:-1], cell, k, ys + top, xs, mine, other)
+                              & (c1 < 1.0 - SECOND_LEAST))
+        j, f2, d2, r2 = self._second_border(ext, top, mine[look], other[look], p[look], y0)
+        i = look[j]
+        v1 = toward[i] - p[i]
+        v2 = self._beyond_point(p[i], f2, d2) - p[i]
+        dot = (v1 * v2).sum(1) / np.maximum(np.hypot(*v1.T) * np.hypot(*v2.T), 1e-300)
+        # the second border is the far side of the region across or one of the pixel's own: the wider
+        # of the two pairs (no choice by the sign of dot, which rounding decides for a pixel on a border)
+        c2 = self._coverage(d2, np.maximum(self._sigma(mine[i], r2, f2), self._sigma(other[i], r2, f2)))
+        a, a2 = shares(c1[i], c2, dot)
+        two = a2 < 1.0 - SECOND_LEAST
+        i = i[two]
+        other2[i], alpha[i], alpha2[i] = r2[two], a[two], a2[two]
+        return other2, alpha, alpha2
 
     def _nearest(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(p, foot, distance)``: each point's foot on the nearest of its ``k`` nearest pieces (by midpoint)."""
@@ -380,12 +522,57 @@ class Borders:
             _, foot[todo], dist[todo] = self._nearest(p[todo], NEAREST)
         return foot, dist
 
+    def _second_border(self, ext, top, mine, other, p, y0):
+        """The nearest piece of each point with neither ``mine`` nor ``other`` just beyond it, within
+        :attr:`limit2`: ``(points that have one, their feet, distances, regions beyond)``.
+
+        Exact (every piece whose midpoint lies within the limit and half the
+        longest piece), as the device's search: a second border chosen among
+        a few pieces would as often be a far one.
+        """
+        lim = self.limit2[mine]
+        rows, pieces = [], []
+        for bound in np.unique(lim):
+            at = np.flatnonzero(lim == bound)
+            k = int(self.tree.query_ball_point(p[at], bound + self.slack, workers=-1, return_length=True).max())
+            if k == 0:
+                continue
+            step = max(1, (1 << 22) // k)  # (memory: a few million pairs at a time)
+            for c in range(0, len(at), step):
+                rc = at[c:c + step]
+                _, near = self.tree.query(p[rc], k=k, distance_upper_bound=bound + self.slack, workers=-1)
+                near = np.asarray(near).reshape(len(rc), k)
+                hit = near < self.tree.n
+                rows.append(np.broadcast_to(rc[:, None], near.shape)[hit])
+                pieces.append(near[hit])
+        row = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        piece = np.concatenate(pieces) if pieces else np.zeros(0, np.int64)
+        a, d, q = self.a[piece], self.d[piece], p[row]
+        w = q - a
+        t = np.clip((w * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
+        foot = a + t[:, None] * d
+        off = q - foot
+        dist = np.sqrt(off[:, 0] ** 2 + off[:, 1] ** 2)
+        r = self._beyond(ext, top, q, foot, dist, y0)
+        ok = (r != mine[row]) & (r != other[row]) & (r >= 0) & (dist < lim[row])
+        row, foot, dist, r, w, d = row[ok], foot[ok], dist[ok], r[ok], w[ok], d[ok]
+        # the nearest per point; on a tie the piece whose middle is nearer (as the device)
+        mid = (w[:, 0] - 0.5 * d[:, 0]) ** 2 + (w[:, 1] - 0.5 * d[:, 1]) ** 2
+        o = np.lexsort((mid, dist, row))
+        first = o[np.r_[True, row[o][1:] != row[o][:-1]]] if len(o) else o
+        return row[first], foot[first], dist[first], r[first]
+
+    @staticmethod
+    def _beyond_point(p, f, dist):
+        """A little beyond feet ``f`` seen from ``p``: 0.75 px on, or the mirror image of ``p`` within 0.75 px."""
+        away = (f - p) / np.maximum(dist, 1e-9)[..., None]
+        return np.where((dist > 0.75)[..., None], f + 0.75 * away, 2.0 * f - p)
+
     @staticmethod
     def _beyond(ext, top, p, f, dist, y0):
-        """Region a little beyond feet ``f`` seen from ``p`` (the mirror image of ``p`` within 0.75 px)."""
+        """Region at :meth:`_beyond_point` (rows and columns beyond the map repeat its edge)."""
         H, W = ext.shape[0], ext.shape[1] - 2
-        away = (f - p) / np.maximum(dist, 1e-9)[..., None]
-        q = np.where((dist > 0.75)[..., None], f + 0.75 * away, 2.0 * f - p)
+        q = Borders._beyond_point(p, f, dist)
         qx = np.clip(np.floor(q[..., 0]).astype(np.int64), -1, W)
         qy = np.clip(np.floor(q[..., 1]).astype(np.int64) - y0 + top, 0, H - 1)
         return ext[qy, qx + 1]
@@ -433,14 +620,15 @@ class Borders:
         return np.where(sigma > 1e-3, F(d + 0.5) - F(d - 0.5), sharp)
 
     def _across(self, ext, top, mine, p, f, dist, ys, xs, y0):
-        """Region just beyond each pixel's nearest outline, else its nearest 8-neighbour of another region."""
+        """Region just beyond each pixel's nearest outline, else its nearest 8-neighbour of another region;
+        and the point it was read at (that neighbour's centre): the direction across, defined also for a
+        pixel centre on the outline."""
         H, W = ext.shape[0], ext.shape[1] - 2
-        # a little beyond the foot of the pixel's perpendicular (the mirror image for pixels on the outline)
-        away = (f - p) / np.maximum(dist, 1e-9)[:, None]
-        q = np.where((dist > 0.75)[:, None], f + 0.75 * away, 2.0 * f - p)
+        q = self._beyond_point(p, f, dist)
         qx = np.clip(np.floor(q[:, 0]).astype(np.int64), -1, W)
         qy = np.clip(np.floor(q[:, 1]).astype(np.int64) - y0 + top, 0, H - 1)
         other = ext[qy, qx + 1]
+        toward = q.copy()
         bad = (other == mine) | (other < 0)
         if bad.any():
             # the point beyond fell in the pixel's own region (an outline corner): the
@@ -451,14 +639,16 @@ class Borders:
             for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
                 r = ext[np.clip(top + ys[ib] + dy, 0, H - 1), 1 + xs[ib] + dx]
                 c = np.column_stack([xs[ib] + dx + 0.5, ys[ib] + y0 + dy + 0.5])
-                dd = np.hypot(*(c - q[ib]).T)
-                take = (r != mine[ib]) & (r >= 0) & (dd < best)
+                e = c - q[ib]
+                dd = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1])  # (the device's expression: ties break alike)
+                take = (r != mine[ib]) & (r >= 0) & (dd < best - 1e-9)  # (near ties: the first, on any rounding)
                 best[take] = dd[take]
                 pick[take] = r[take]
+                toward[ib[take]] = c[take]
             other = other.copy()
             other[ib] = pick
-        return other
+        return other, toward
 
 
 __all__ = ["BorderMix", "Borders", "FAR_NEAREST", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
-           "piece_counts", "region_limits"]
+           "MASK_CELL", "near_cells", "piece_counts", "region_limits", "SECOND_LEAST", "shares", "third_near"]

@@ -338,12 +338,14 @@ class LiveImage:
             # found, and their (S, T) across, on the device: nothing crosses to the host
             mix = DeviceBorders(self._drawn, self.W, self.H, self.device).mix_device(self._pm.index_d,
                                                                              threads=self.threads)
-            self._mix = (mix, inverse_points_device(self._patches, mix.other, mix.xy) if mix.n else None)
+            st = (inverse_points_device(self._patches, mix.other, mix.xy),
+                  inverse_points_device(self._patches, mix.other2, mix.xy)) if mix.n else None
+            self._mix = (mix, st)
         mix, st = self._mix
         self._shown = warp().clone(self._out)
         if mix.n:
-            gtps.mix_border_device(dk, self._shown, mix.pixels, mix.other, st, mix.alpha, threads=self.threads,
-                                   clamp=self.clamp)
+            gtps.mix_border_device(dk, self._shown, mix.pixels, mix.other, st[0], mix.alpha, mix.other2, st[1],
+                                   mix.alpha2, threads=self.threads, clamp=self.clamp)
 
     def _add_detail(self, model) -> None:
         """Step 6: the detail layer added to the shown image (as ``render`` does)."""

@@ -351,12 +351,18 @@ def shade(model, index, st, device: str = "cpu", kernels=None, threads=None, cla
     return Renderer(model, device, threads, clamp, kernels, tick).shade(index, st, borders, download, tick)
 
 
-def border_st(model, borders, device, patch_set=None) -> np.ndarray:
-    """``(S, T)`` of each of ``borders``' pixels in the patch of the region across."""
+def border_st(model, borders, device, patch_set=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(S, T)`` of each of ``borders``' pixels in the patch of the region across, and of the region
+    across a second border (zeros where there is none)."""
     from ..gpu.patchmap import inverse_points
 
-    return inverse_points([r.patch for r in model.regions], borders.other, borders.xy, device=device,
-                          patch_set=patch_set)
+    patches = [r.patch for r in model.regions]
+    st = inverse_points(patches, borders.other, borders.xy, device=device, patch_set=patch_set)
+    st2 = np.zeros_like(st)
+    two = np.flatnonzero(borders.other2 >= 0)
+    if two.size:
+        st2[two] = inverse_points(patches, borders.other2[two], borders.xy[two], device=device, patch_set=patch_set)
+    return st, st2
 
 
 def device_detail(model, device: str):
@@ -393,21 +399,23 @@ def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> Non
 
         ps = patch_set if patch_set is not None else PatchSet.build([r.patch for r in model.regions], dk.device)
         st = inverse_points_device(ps, borders.other, borders.xy)
-        gtps.mix_border_device(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
+        st2 = inverse_points_device(ps, borders.other2, borders.xy)
+        gtps.mix_border_device(dk, out, borders.pixels, borders.other, st, borders.alpha, borders.other2, st2,
+                               borders.alpha2, threads=threads, clamp=clamp)
         return
 
-    st = border_st(model, borders, dk.device, patch_set)
-    gtps.mix_border(dk, out, borders.pixels, borders.other, st, borders.alpha, threads=threads, clamp=clamp)
+    st, st2 = border_st(model, borders, dk.device, patch_set)
+    gtps.mix_border(dk, out, borders, st, st2, threads=threads, clamp=clamp)
 
 
 def opacity(model, index: np.ndarray, mix: BorderMix | None) -> tuple[np.ndarray, BorderMix | None]:
     """The alpha channel of a frame or band, and its border mix for straight alpha.
 
     A pixel of a transparent region has alpha 0, any other 1. A border
-    pixel's alpha is the coverage of its opaque side(s); its colour is the
-    opaque side's alone (mixed as usual when both sides are opaque), so that
-    compositing the straight-alpha image over a background gives the
-    anti-aliased edge.
+    pixel's alpha is the share of its opaque sides (own, across, across a
+    second border); its colour is the opaque sides' alone (mixed as usual
+    when all are opaque), so that compositing the straight-alpha image over
+    a background gives the anti-aliased edge.
 
     Parameters
     ----------
@@ -420,20 +428,27 @@ def opacity(model, index: np.ndarray, mix: BorderMix | None) -> tuple[np.ndarray
     -------
     alpha : ndarray (h, W) float32
     mix : BorderMix or None
-        ``mix`` without the pixels that take only their own colour, and with
-        coverage 0 (the region across's colour) where the own region is transparent.
+        ``mix`` with its shares renormalised over the opaque sides, without
+        the pixels that then take only their own colour.
     """
     clear = np.array([bool(getattr(r, "transparent", False)) for r in model.regions] + [False])
     alpha = (~clear[index]).astype(np.float32)
     if mix is None or mix.pixels.size == 0 or not clear.any():
         return alpha, mix
-    own = clear[index.reshape(-1)[mix.pixels]]
-    across = clear[mix.other]
-    alpha.reshape(-1)[mix.pixels] = np.where(own, 0.0, mix.alpha) + np.where(across, 0.0, 1.0 - mix.alpha)
-    keep = ~across  # an opaque region across gives its colour; a transparent one gives none
-    cover = np.where(own, np.float32(0.0), mix.alpha)[keep]
-    return alpha, BorderMix(pixels=mix.pixels[keep], other=mix.other[keep], alpha=cover.astype(np.float32),
-                            xy=mix.xy[keep])
+    a1, a2 = mix.alpha.astype(np.float64), mix.alpha2.astype(np.float64)
+    # each side's share of the pixel, counted only where its region is opaque
+    w0 = np.where(clear[index.reshape(-1)[mix.pixels]], 0.0, a1 * a2)
+    w1 = np.where(clear[mix.other], 0.0, (1.0 - a1) * a2)
+    w2 = np.where(clear[mix.other2], 0.0, 1.0 - a2)  # (other2 -1: the last entry, opaque, with share 0)
+    total = w0 + w1 + w2
+    alpha.reshape(-1)[mix.pixels] = total
+    # the colour is the opaque sides' alone: the same two steps with their shares renormalised
+    first = w0 + w1
+    b2 = np.where(total > 0, first / np.maximum(total, 1e-300), 1.0)
+    b1 = np.where(first > 0, w0 / np.maximum(first, 1e-300), 1.0)
+    keep = (b1 < 1.0) | (b2 < 1.0)
+    return alpha, BorderMix(pixels=mix.pixels[keep], other=mix.other[keep], alpha=b1[keep].astype(np.float32),
+                            xy=mix.xy[keep], other2=mix.other2[keep], alpha2=b2[keep].astype(np.float32))
 
 
 def _render(model, width, height, scale, device, kernels, threads, clamp, timed: bool, antialias: bool = True,
