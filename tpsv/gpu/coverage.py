@@ -54,6 +54,8 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
+from ..rendering.borders import MAX_REJECTED as MAX_REJECTED_PIECES
+from ..rendering.borders import MAX_VISIT as MAX_VISIT_PIECES
 from ..rendering.borders import SECOND_LEAST, BorderMix, Borders, blur_map, edge_widths, region_limits, widest_sigma
 from . import resolve_device
 from . import warp as _warp
@@ -81,6 +83,9 @@ _INV_SQRT_2 = wp.constant(wp.float64(1.0 / np.sqrt(2.0)))
 #: outline into a small canvas: thousands).
 DENSE_PIECES = 16
 _MIXED = wp.constant(wp.float64(1.0 - 1e-4))
+#: Most pieces one search measures, and most near ones it finds no border (``borders.MAX_VISIT``, ``MAX_REJECTED``).
+MAX_VISIT = wp.constant(MAX_VISIT_PIECES)
+MAX_REJECTED = wp.constant(MAX_REJECTED_PIECES)
 _SECOND = wp.constant(wp.float64(1.0 - SECOND_LEAST))
 
 
@@ -193,7 +198,8 @@ def _beyond(index: wp.array2d(dtype=wp.int32), iy0: int, px: wp.float64, py: wp.
 def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp.float64, bmid2: wp.float64,
            fx: wp.float64, fy: wp.float64, index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int,
            free2: wp.float64):
-    """One piece of :func:`_nearest`'s search: the best so far ``(best2, bmid2, fx, fy)``, updated, and 1 if it was."""
+    """One piece of :func:`_nearest`'s search: the best so far ``(best2, bmid2, fx, fy)``, updated, and 1 if it
+    was (-1: the piece was nearer but not a border)."""
     wx = px - p0[0]
     wy = py - p0[1]
     # the host's expression (Borders._nearest), in its order
@@ -214,6 +220,8 @@ def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp
         if take and d2 > free2:
             o = _beyond(index, iy0, px, py, qx, qy, wp.sqrt(d2))
             take = o != mine and o != excl and o >= 0
+            if not take:
+                took = -1
         if take:
             return d2, m2, qx, qy, 1
     return best2, bmid2, fx, fy, took
@@ -236,7 +244,10 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     piece nearer than the best so far has its midpoint within ``best +
     slack`` of the pixel, so each row is read only over the cells in that
     circle (one run of pieces: cells are row-major and pieces sorted by
-    cell), and the search stops at the first rows wholly outside it.
+    cell), and the search stops at the first rows wholly outside it, or
+    after :data:`MAX_VISIT` pieces or :data:`MAX_REJECTED` near ones that
+    are no border (outlines folded over a few pixels: a hostile file gets
+    an answer, not a hang).
     """
     cy = wp.min(y / cell, gh - 1)
     px = wp.float64(x) + wp.float64(0.5)
@@ -246,8 +257,11 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     bmid2 = wp.float64(1e300)
     fx = px
     fy = py
+    visited = int(0)
+    rejected = int(0)
     for j in range(rows):
-        if wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best:
+        if (wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best or visited >= MAX_VISIT
+                or rejected >= MAX_REJECTED):
             break
         for side in range(2):
             row = cy - j
@@ -261,10 +275,17 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                 x1 = wp.clamp(int(wp.floor((px + half) / wp.float64(cell))), 0, gw - 1)
                 found = int(0)
                 if use_mask == 0:
-                    for n in range(start[row * gw + x0], start[row * gw + x1 + 1]):
-                        best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index, iy0,
-                                                            mine, excl, free2)
-                        found = found | took
+                    lo = start[row * gw + x0]
+                    hi = wp.max(lo, wp.min(start[row * gw + x1 + 1], lo + MAX_VISIT - visited))
+                    visited = visited + hi - lo
+                    for n in range(lo, hi):
+                        if rejected < MAX_REJECTED:
+                            best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index,
+                                                                iy0, mine, excl, free2)
+                            if took > 0:
+                                found = 1
+                            elif took < 0:
+                                rejected = rejected + 1
                 else:
                     for cx in range(x0, x1 + 1):
                         m = wp.uint64(0)
@@ -275,10 +296,17 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                             m = ~two  # (beyond the masks' rows: every cell is looked at)
                         # no region but mine and excl near the cell: no piece of it counts
                         if (m & two) != m:
-                            for n in range(start[row * gw + cx], start[row * gw + cx + 1]):
-                                best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index,
-                                                                    iy0, mine, excl, free2)
-                                found = found | took
+                            lo = start[row * gw + cx]
+                            hi = wp.max(lo, wp.min(start[row * gw + cx + 1], lo + MAX_VISIT - visited))
+                            visited = visited + hi - lo
+                            for n in range(lo, hi):
+                                if rejected < MAX_REJECTED:
+                                    best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy,
+                                                                        index, iy0, mine, excl, free2)
+                                    if took > 0:
+                                        found = 1
+                                    elif took < 0:
+                                        rejected = rejected + 1
                 if found != 0:
                     best = wp.sqrt(best2)
     return best, fx, fy
@@ -705,8 +733,9 @@ class DeviceBorders:
         self.grid = None
         if pieces.n > DENSE_PIECES * self.width * self.height:
             # outlines folded over a few pixels (a hostile or degenerate file): an exact search
-            # would visit thousands of pieces per pixel, the host's k-d tree a few
-            self._host = Borders(model, self.width, self.height)
+            # would visit thousands of pieces per pixel, the host's k-d tree a few (and no second
+            # border, whose search covers every piece within its reach)
+            self._host = Borders(model, self.width, self.height, second=False)
             self._kept = pieces.n
             return
         if pieces.n == 0:
@@ -731,9 +760,9 @@ class DeviceBorders:
         dev = self.device
         keys_d = wp.array(keys, dtype=wp.int64, device=dev)
         sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
-        limit = wp.array(region_limits(nr, keys, sigma, bmap, self.reach_px), dtype=wp.float64, device=dev)
-        limit2 = wp.array(region_limits(nr, keys, sigma, bmap, self.reach_px, SECOND_LEAST), dtype=wp.float64,
-                          device=dev)
+        lim1, lim2 = region_limits(nr, keys, sigma, bmap, self.reach_px)
+        limit = wp.array(lim1, dtype=wp.float64, device=dev)
+        limit2 = wp.array(lim2, dtype=wp.float64, device=dev)
         self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell, aw=aw,
                               acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
                               blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,

@@ -58,6 +58,11 @@ NEAREST = 8
 SECOND_LEAST = 1.0 / 512.0
 #: Cell side (output px) of the region masks that tell which pixels may have a second border (:func:`third_near`).
 MASK_CELL = 8
+#: Most pieces one search for a border measures, and most near pieces it may find no border (their
+#: own region beyond) before it gives up: outlines folded over a few pixels, as a hostile file may
+#: have them, get an answer rather than a hang; real outlines stay far below.
+MAX_VISIT = 4096
+MAX_REJECTED = 512
 #: Pieces measured per pixel off the 8-neighbours of a blurred border (the far tail varies slowly).
 FAR_NEAREST = 4
 
@@ -220,13 +225,13 @@ def widest_sigma(sigma: np.ndarray, bmap) -> float:
 
 
 def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, reach: float,
-                  least: float = 1e-4) -> np.ndarray:
+                  least=(1e-4, SECOND_LEAST)) -> np.ndarray:
     """Per region, the distance (output px) from its border beyond which none of its pixels mixes.
 
     Coverage grows with the distance and shrinks with the edge width, so a
     pixel of region ``r`` mixes (coverage ``< 1 - least``) only nearer than
-    where the widest of ``r``'s borders reaches ``1 - least`` (found by
-    bisection, plus 1e-6 px), and never beyond ``reach``.
+    where the widest of ``r``'s borders reaches ``1 - least`` (plus 1e-6
+    px), and never beyond ``reach``.
 
     Parameters
     ----------
@@ -236,12 +241,13 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
     bmap : tuple or None
         The :func:`blur_map` (every region as wide as its widest point).
     reach : float
-    least : float
-        The least share of a pixel that counts.
+    least : sequence of float
+        The least shares of a pixel that count: the first border's and a
+        second border's (:attr:`Borders.limit`, :attr:`Borders.limit2`).
 
     Returns
     -------
-    ndarray (n_regions,) float64
+    ndarray (len(least), n_regions) float64
     """
     widest = np.zeros(n_regions)
     if bmap is not None:
@@ -249,14 +255,20 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
     elif keys.size:
         np.maximum.at(widest, keys // n_regions, sigma)
         np.maximum.at(widest, keys % n_regions, sigma)
-    lo = np.zeros(n_regions)
-    hi = np.full(n_regions, reach + 1.0)
-    for _ in range(50):  # to ~1e-14 px
-        mid = 0.5 * (lo + hi)
-        below = Borders._coverage(mid, widest) < 1.0 - least
-        lo = np.where(below, mid, lo)
-        hi = np.where(below, hi, mid)
-    return np.minimum(hi + 1e-6, reach)
+    from scipy.special import ndtri
+
+    # (once per distinct width: a render at a new size waits for this)
+    width, back = np.unique(widest, return_inverse=True)
+    least = np.asarray(least, np.float64)[:, None]
+    s = np.maximum(width[None, :], 1e-6)
+    # Newton from the left: coverage rises and is concave beyond 0, and lies between
+    # Phi((d - 1/2) / s) and Phi((d + 1/2) / s), so from s z - 1/2 the steps rise to the root
+    d = np.maximum(s * ndtri(1.0 - least) - 0.5, 0.0)
+    for _ in range(12):  # (to rounding: from a start within 1 px, slower for the sharpest widths)
+        slope = np.maximum(ndtr((d + 0.5) / s) - ndtr((d - 0.5) / s), 1e-300)
+        d = d + np.maximum((1.0 - least) - Borders._coverage(d, s), 0.0) / slope
+    d = np.where(width[None, :] > 1e-3, d, 0.5 - least)  # a sharp step: min(1, 1/2 + d)
+    return np.minimum(d + 1e-6, reach)[:, back.reshape(-1)]
 
 
 def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -335,15 +347,20 @@ class Borders:
     model : Model
     width, height : int
         Output size.
+    second : bool
+        Mix the region across a second border too (off: one region across,
+        for outlines too dense for the device, where that search is long).
     """
 
     #: Measure every point to its truly nearest border piece (tests), not the nearest of a few.
     exact = False
 
-    def __init__(self, model, width: int, height: int):
+    def __init__(self, model, width: int, height: int, second: bool = True):
         from scipy.spatial import cKDTree
 
         self.width, self.height = int(width), int(height)
+        #: whether pixels mix a second border's region too (:meth:`_second`)
+        self.second = bool(second)
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
         self.n_regions = max(len(model.regions), 1)
@@ -352,10 +369,10 @@ class Borders:
         #: farthest a mixed pixel lies from its border, output pixels; rows of halo a band needs
         self.reach_px = 0.5 + 3.0 * widest_sigma(self.blur_sigma, self.blur_map)
         self.halo = int(np.ceil(self.reach_px)) + 1
-        self.limit = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map, self.reach_px)
-        #: the same for a second border (:meth:`_second`), whose share counts from :data:`SECOND_LEAST`
-        self.limit2 = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map, self.reach_px,
-                                    SECOND_LEAST)
+        #: per region, how far from its border a pixel mixes; ``limit2``: the same for a second border
+        #: (:meth:`_second`), whose share counts from :data:`SECOND_LEAST`
+        self.limit, self.limit2 = region_limits(self.n_regions, self.blur_keys, self.blur_sigma, self.blur_map,
+                                                self.reach_px)
         self.a, self.d = outline_pieces(model, self.width, self.height)
         self.tree = cKDTree(self.a + 0.5 * self.d) if len(self.a) else None
         #: half the longest piece: no point of a piece is nearer than its midpoint less this
@@ -450,7 +467,7 @@ class Borders:
         n = len(p)
         other2 = np.full(n, -1, np.int64)
         alpha, alpha2 = c1.copy(), np.ones(n)
-        if not n:
+        if not n or not self.second:
             return other2, alpha, alpha2
         cell, k = near_cells(float(self.limit2.max()))
         # (a second border is no nearer than the first: it counts only where the first does)
@@ -489,7 +506,7 @@ class Borders:
         far side is the point's own region). Nor is a piece beyond the
         region's :attr:`limit`. Each point is measured to the ``k[i]`` pieces
         nearest it by midpoint; where none of those is a border, to 64, then 4
-        times as many, until one is or the pieces left lie beyond the limit
+        times as many (up to :data:`MAX_REJECTED`), until one is or the pieces left lie beyond the limit
         (with :attr:`exact`, also until the pieces left lie beyond the best);
         where none is, the nearest piece.
         """
@@ -513,8 +530,8 @@ class Borders:
                 dist[r_[found]] = d[i, best][found]
                 # a piece nearer than the best so far (or the limit) has its midpoint within that + slack
                 bound = np.where(found, dist[r_], lim[r_]) if self.exact else np.where(found, -np.inf, lim[r_])
-                more = (far <= bound + self.slack) & (kn < self.tree.n)
-                nxt.append((r_[more], np.full(int(more.sum()), max(64, 4 * int(kn)))))
+                more = (far <= bound + self.slack) & (kn < min(self.tree.n, MAX_REJECTED))
+                nxt.append((r_[more], np.full(int(more.sum()), min(max(64, 4 * int(kn)), MAX_REJECTED))))
             rows = np.concatenate([r for r, _ in nxt]) if nxt else np.zeros(0, np.int64)
             kk = np.concatenate([v for _, v in nxt]) if nxt else np.zeros(0, np.int64)
         todo = np.flatnonzero(~np.isfinite(dist))
@@ -527,14 +544,16 @@ class Borders:
         :attr:`limit2`: ``(points that have one, their feet, distances, regions beyond)``.
 
         Exact (every piece whose midpoint lies within the limit and half the
-        longest piece), as the device's search: a second border chosen among
-        a few pieces would as often be a far one.
+        longest piece, up to the :data:`MAX_REJECTED` nearest), as the
+        device's search: a second border chosen among a few pieces would as
+        often be a far one.
         """
         lim = self.limit2[mine]
         rows, pieces = [], []
         for bound in np.unique(lim):
             at = np.flatnonzero(lim == bound)
-            k = int(self.tree.query_ball_point(p[at], bound + self.slack, workers=-1, return_length=True).max())
+            k = min(int(self.tree.query_ball_point(p[at], bound + self.slack, workers=-1, return_length=True).max()),
+                    MAX_REJECTED)
             if k == 0:
                 continue
             step = max(1, (1 << 22) // k)  # (memory: a few million pairs at a time)
@@ -651,4 +670,4 @@ class Borders:
 
 
 __all__ = ["BorderMix", "Borders", "FAR_NEAREST", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
-           "MASK_CELL", "near_cells", "piece_counts", "region_limits", "SECOND_LEAST", "shares", "third_near"]
+           "MASK_CELL", "MAX_REJECTED", "MAX_VISIT", "near_cells", "piece_counts", "region_limits", "SECOND_LEAST", "shares", "third_near"]
