@@ -42,7 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr
+from scipy.special import ndtr, ndtri
 
 from ..geometry import curves
 from ..geometry.edgewidth import map_at
@@ -230,7 +230,8 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
 
     Coverage grows with the distance and shrinks with the edge width, so a
     pixel of region ``r`` mixes (coverage ``< 1 - least``) only nearer than
-    where the widest of ``r``'s borders reaches ``1 - least`` (plus 1e-6
+    where the widest of ``r``'s borders reaches ``1 - least``: a bound of
+    that, at most a pixel beyond it (exact for sharp borders; plus 1e-6
     px), and never beyond ``reach``.
 
     Parameters
@@ -255,20 +256,12 @@ def region_limits(n_regions: int, keys: np.ndarray, sigma: np.ndarray, bmap, rea
     elif keys.size:
         np.maximum.at(widest, keys // n_regions, sigma)
         np.maximum.at(widest, keys % n_regions, sigma)
-    from scipy.special import ndtri
-
-    # (once per distinct width: a render at a new size waits for this)
-    width, back = np.unique(widest, return_inverse=True)
-    least = np.asarray(least, np.float64)[:, None]
-    s = np.maximum(width[None, :], 1e-6)
-    # Newton from the left: coverage rises and is concave beyond 0, and lies between
-    # Phi((d - 1/2) / s) and Phi((d + 1/2) / s), so from s z - 1/2 the steps rise to the root
-    d = np.maximum(s * ndtri(1.0 - least) - 0.5, 0.0)
-    for _ in range(12):  # (to rounding: from a start within 1 px, slower for the sharpest widths)
-        slope = np.maximum(ndtr((d + 0.5) / s) - ndtr((d - 0.5) / s), 1e-300)
-        d = d + np.maximum((1.0 - least) - Borders._coverage(d, s), 0.0) / slope
-    d = np.where(width[None, :] > 1e-3, d, 0.5 - least)  # a sharp step: min(1, 1/2 + d)
-    return np.minimum(d + 1e-6, reach)[:, back.reshape(-1)]
+    level = 1.0 - np.asarray(least, np.float64)[:, None]
+    # the box filter of the blurred step lies between Phi((d - 1/2) / s) and Phi((d + 1/2) / s): it has
+    # reached the level by s z + 1/2, at most a pixel past where it does (the pixels between are
+    # measured, and found not to mix)
+    d = np.where(widest[None, :] > 1e-3, widest[None, :] * ndtri(level) + 0.5, 0.5 - (1.0 - level))
+    return np.minimum(d + 1e-6, reach)
 
 
 def blur_at(bmap, x: np.ndarray, y: np.ndarray) -> np.ndarray:
