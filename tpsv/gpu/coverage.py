@@ -473,6 +473,32 @@ def _cell_regions(rows: wp.array2d(dtype=wp.uint64), iy0: int, cell: int, row0: 
 
 
 @wp.kernel
+def _gather_row(masks: wp.array2d(dtype=wp.uint64), k: int, out: wp.array2d(dtype=wp.uint64)):
+    """Each cell's union of the masks within ``k`` cells along its row (the first pass of :func:`_gather_masks`)."""
+    i, j = wp.tid()
+    m = wp.uint64(0)
+    for b in range(wp.max(j - k, 0), wp.min(j + k, masks.shape[1] - 1) + 1):
+        m = m | masks[i, b]
+    out[i, j] = m
+
+
+@wp.kernel
+def _gather_masks(rows: wp.array2d(dtype=wp.uint64), k: int, more_above: int, more_below: int,
+                  near: wp.array2d(dtype=wp.uint64)):
+    """Each cell's union of the masks of the cells within ``k`` of it (``borders.third_near`` on cells),
+    from :func:`_gather_row`'s; every region where those cells reach rows of cells the masks do not cover
+    (``more_above``/``below``)."""
+    i, j = wp.tid()
+    m = wp.uint64(0)
+    if (i - k < 0 and more_above != 0) or (i + k > rows.shape[0] - 1 and more_below != 0):
+        m = ~m
+    else:
+        for a in range(wp.max(i - k, 0), wp.min(i + k, rows.shape[0] - 1) + 1):
+            m = m | rows[a, j]
+    near[i, j] = m
+
+
+@wp.kernel
 def _candidates(apart: wp.array(dtype=wp.float32), limit: wp.array(dtype=wp.float64), aw: int, acell: int,
                 blurred: int, index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, mask: wp.array(dtype=wp.int32),
                 count: wp.array(dtype=wp.int32)):
@@ -557,8 +583,12 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
              keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32),
              other2: wp.array(dtype=wp.int32), alpha2: wp.array(dtype=wp.float32),
-             masks: wp.array2d(dtype=wp.uint64), mrow0: int):
-    """Each candidate: nearest border piece, region across, coverage, a second border; ``keep`` 1 where it mixes."""
+             masks: wp.array2d(dtype=wp.uint64), near: wp.array2d(dtype=wp.uint64), mrow0: int):
+    """Each candidate: nearest border piece, region across, coverage, a second border; ``keep`` 1 where it mixes.
+
+    ``masks``: the regions near each search cell (:func:`_cell_regions`), ``near`` the same gathered over
+    the cells a second border's search from the cell may read (:func:`_gather_masks`).
+    """
     i = wp.tid()
     W = index.shape[1]
     p = cand[i]
@@ -601,6 +631,11 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                 if s >= _SECOND:
                     lim2 = wp.float64(0.0)
                 two = (wp.uint64(1) << wp.uint64(mine % 64)) | (wp.uint64(1) << wp.uint64(o % 64))
+                mr = y / cell - mrow0
+                if mr >= 0 and mr < near.shape[0]:
+                    m = near[mr, x / cell]
+                    if (m & two) == m:
+                        lim2 = wp.float64(0.0)  # no third region within the reach of any cell's pieces
                 dist2, gx, gy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
                                          wp.float64(-1.0), masks, mrow0, two, 1)
                 if dist2 < lim2:
@@ -761,6 +796,7 @@ class DeviceBorders:
         keys_d = wp.array(keys, dtype=wp.int64, device=dev)
         sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
         lim1, lim2 = region_limits(nr, keys, sigma, bmap, self.reach_px)
+        self._reach2 = float(lim2.max(initial=0.0))
         limit = wp.array(lim1, dtype=wp.float64, device=dev)
         limit2 = wp.array(lim2, dtype=wp.float64, device=dev)
         self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell, aw=aw,
@@ -896,6 +932,15 @@ class DeviceBorders:
             _launch_banded(_row_regions, h_ext, h_ext * W >= _BAND_MIN, dev, threads, launch_rows_m)
             wp.launch(_cell_regions, dim=masks.shape, inputs=[rows_m, iy0, g.cell, mrow0, edge, masks], device=dev)
             del rows_m
+            near = wp.empty_like(masks)
+            k = int(np.ceil((self._reach2 + g.slack) / g.cell)) + 1
+            wp.launch(_gather_row, dim=masks.shape, inputs=[masks, k, near], device=dev)
+            rows_m = wp.clone(near)
+            wp.launch(_gather_masks, dim=masks.shape, inputs=[rows_m, k, int(mrow0 > 0), int(mrow1 < g.gh - 1), near],
+                      device=dev)
+            del rows_m
+        else:
+            near = masks
         keep = wp.empty(nc, dtype=wp.int32, device=dev)
         other = wp.empty(nc, dtype=wp.int32, device=dev)
         alpha = wp.empty(nc, dtype=wp.float32, device=dev)
@@ -906,7 +951,7 @@ class DeviceBorders:
             wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.limit2, g.keys, g.sigma, g.n_regions, g.bmap,
                                                      wp.float64(g.bcw), wp.float64(g.bch), g.has_map, index_d, iy0, a,
                                                      cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1],
-                                                     other2[i0:i1], alpha2[i0:i1], masks, mrow0], device=dev)
+                                                     other2[i0:i1], alpha2[i0:i1], masks, near, mrow0], device=dev)
 
         _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
         koffs = wp.empty(nc, dtype=wp.int32, device=dev)
