@@ -8,17 +8,25 @@ numbers): the outline pieces, cut as ``Borders`` cuts them, sorted into a
 uniform grid of square cells, with (for blurred borders) a lower bound of
 every pixel's distance to them, and each region's distance beyond which
 none of its pixels mixes. :meth:`DeviceBorders.mix_device` then takes a
-region map already on the device, in four small launches and two prefix sums:
+region map already on the device, in a few small launches and two prefix sums:
 
 1. one thread per :data:`GROUP` pixels of a row: which may mix? (sharp
    borders: the pixels with an 8-neighbour of another region; blurred
    ones: the pixels a piece may lie within their region's limit of);
 2. their flat indices, compacted by a prefix sum of the groups' counts;
-3. one thread per such pixel: the nearest border piece (an exact search of
-   the grid, row of cells by row of cells; ``Borders._nearest_border``), the region across
-   (``Borders._across``), the pair's edge width (``Borders._sigma``), the
-   coverage (``Borders._coverage``, Phi from ``wp.erf``, float64);
-4. the pixels that mix (``alpha < 1 - 1e-4``), compacted by a second prefix sum.
+3. (blurred borders) the regions near each search cell, as 64-bit masks
+   (:func:`_row_regions`, :func:`_cell_regions`), and the same gathered
+   over the cells a second border's search may read (:func:`_gather_row`,
+   :func:`_gather_masks`);
+4. one thread per candidate pixel: the nearest border piece (an exact
+   search of the grid, row of cells by row of cells;
+   ``Borders._nearest_border``), the region across (``Borders._across``),
+   the pair's edge width (``Borders._sigma``), the coverage
+   (``Borders._coverage``, Phi from ``wp.erf``, float64); then a second
+   border (``Borders._second``: the nearest piece with a third region
+   beyond, passing over the cells whose masks hold none) and the shares
+   (``borders.shares``);
+5. the pixels that mix (``alpha < 1 - 1e-4``), compacted by a second prefix sum.
 
 Prefix sums keep the pixels in increasing flat index: the result is the
 same on every device and for every split of the CPU launches. The two
@@ -54,9 +62,8 @@ import numpy as np
 import warp as wp
 
 from ..geometry import curves
-from ..rendering.borders import MAX_REJECTED as MAX_REJECTED_PIECES
-from ..rendering.borders import MAX_VISIT as MAX_VISIT_PIECES
-from ..rendering.borders import SECOND_LEAST, BorderMix, Borders, blur_map, edge_widths, region_limits, widest_sigma
+from ..rendering.borders import (MAX_REJECTED, MAX_VISIT, SECOND_LEAST, BorderMix, Borders, blur_map, edge_widths,
+                                 region_limits, widest_sigma)
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -83,9 +90,9 @@ _INV_SQRT_2 = wp.constant(wp.float64(1.0 / np.sqrt(2.0)))
 #: outline into a small canvas: thousands).
 DENSE_PIECES = 16
 _MIXED = wp.constant(wp.float64(1.0 - 1e-4))
-#: Most pieces one search measures, and most near ones it finds no border (``borders.MAX_VISIT``, ``MAX_REJECTED``).
-MAX_VISIT = wp.constant(MAX_VISIT_PIECES)
-MAX_REJECTED = wp.constant(MAX_REJECTED_PIECES)
+# most pieces one search measures, and most near ones it finds no border (borders.MAX_VISIT, MAX_REJECTED)
+_MAX_VISIT = wp.constant(MAX_VISIT)
+_MAX_REJECTED = wp.constant(MAX_REJECTED)
 _SECOND = wp.constant(wp.float64(1.0 - SECOND_LEAST))
 
 
@@ -245,7 +252,7 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     slack`` of the pixel, so each row is read only over the cells in that
     circle (one run of pieces: cells are row-major and pieces sorted by
     cell), and the search stops at the first rows wholly outside it, or
-    after :data:`MAX_VISIT` pieces or :data:`MAX_REJECTED` near ones that
+    after ``borders.MAX_VISIT`` pieces or ``MAX_REJECTED`` near ones that
     are no border (outlines folded over a few pixels: a hostile file gets
     an answer, not a hang).
     """
@@ -260,8 +267,8 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     visited = int(0)
     rejected = int(0)
     for j in range(rows):
-        if (wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best or visited >= MAX_VISIT
-                or rejected >= MAX_REJECTED):
+        if (wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best or visited >= _MAX_VISIT
+                or rejected >= _MAX_REJECTED):
             break
         for side in range(2):
             row = cy - j
@@ -276,10 +283,10 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                 found = int(0)
                 if use_mask == 0:
                     lo = start[row * gw + x0]
-                    hi = wp.max(lo, wp.min(start[row * gw + x1 + 1], lo + MAX_VISIT - visited))
+                    hi = wp.max(lo, wp.min(start[row * gw + x1 + 1], lo + _MAX_VISIT - visited))
                     visited = visited + hi - lo
                     for n in range(lo, hi):
-                        if rejected < MAX_REJECTED:
+                        if rejected < _MAX_REJECTED:
                             best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index,
                                                                 iy0, mine, excl, free2)
                             if took > 0:
@@ -297,10 +304,10 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                         # no region but mine and excl near the cell: no piece of it counts
                         if (m & two) != m:
                             lo = start[row * gw + cx]
-                            hi = wp.max(lo, wp.min(start[row * gw + cx + 1], lo + MAX_VISIT - visited))
+                            hi = wp.max(lo, wp.min(start[row * gw + cx + 1], lo + _MAX_VISIT - visited))
                             visited = visited + hi - lo
                             for n in range(lo, hi):
-                                if rejected < MAX_REJECTED:
+                                if rejected < _MAX_REJECTED:
                                     best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy,
                                                                         index, iy0, mine, excl, free2)
                                     if took > 0:
@@ -578,8 +585,8 @@ def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), off
 @wp.kernel
 def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
-             limit2: wp.array(dtype=wp.float64), keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
-             bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
+             limit2: wp.array(dtype=wp.float64), keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64),
+             n_regions: int, bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
              keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32),
              other2: wp.array(dtype=wp.int32), alpha2: wp.array(dtype=wp.float32),
@@ -799,8 +806,8 @@ class DeviceBorders:
         self._reach2 = float(lim2.max(initial=0.0))
         limit = wp.array(lim1, dtype=wp.float64, device=dev)
         limit2 = wp.array(lim2, dtype=wp.float64, device=dev)
-        self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell, aw=aw,
-                              acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
+        self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell,
+                              aw=aw, acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
                               blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,
                               bmap=wp.array(np.zeros((1, 1)) if bmap is None else bmap[0], dtype=wp.float64,
                                             device=dev),

@@ -514,10 +514,10 @@ def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2=None, threads: int
         return wp.array(np.ascontiguousarray(v).reshape(shape), dtype=dtype, device=dev)
 
     st2 = np.zeros((n, 2), np.float32) if st2 is None else np.asarray(st2, np.float32)
-    return mix_border_device(dk, out, up(mix.pixels.astype(np.int32), wp.int32), up(mix.other.astype(np.int32), wp.int32),
-                             up(np.asarray(st, np.float32), wp.vec2f, (-1, 2)), up(mix.alpha.astype(np.float32), wp.float32),
-                             up(mix.other2.astype(np.int32), wp.int32), up(st2, wp.vec2f, (-1, 2)),
-                             up(mix.alpha2.astype(np.float32), wp.float32), threads, clamp)
+    return mix_border_device(dk, out, up(mix.pixels.astype(np.int32), wp.int32),
+                             up(mix.other.astype(np.int32), wp.int32), up(np.asarray(st, np.float32), wp.vec2f, (-1, 2)),
+                             up(mix.alpha.astype(np.float32), wp.float32), up(mix.other2.astype(np.int32), wp.int32),
+                             up(st2, wp.vec2f, (-1, 2)), up(mix.alpha2.astype(np.float32), wp.float32), threads, clamp)
 
 
 def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, oth2_d, st2_d, al2_d,

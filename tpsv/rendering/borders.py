@@ -31,10 +31,16 @@ midpoints go into a k-d tree; each border pixel measures its exact distance
 to the :data:`NEAREST` nearest pieces. The region across is the one found
 just beyond the nearest outline (else the pixel's nearest 8-neighbour of
 another region), so junctions of three regions mix the right pair. A piece
-farther than 0.75 px with the pixel's own region beyond it is no border for
-that pixel: an outline may hold a spike or sliver thinner than an output
-pixel, which no pixel centre samples, and measuring to it would leave a
-wedge of unmixed pixels in a blurred border.
+with the pixel's own region beyond it is no border for that pixel (unless
+within 0.75 px of a pixel next to another region): an outline may hold a
+spike or sliver thinner than an output pixel, which no pixel centre
+samples, and measuring to it would leave a wedge of unmixed pixels in a
+blurred border.
+
+A pixel also mixes the region across a second border, the nearest piece
+with a third region beyond (:func:`shares`): a sliver region narrower than
+its edges are wide then mixes both neighbours alike on both sides of its
+middle, and a pixel beside it sees the region beyond it.
 """
 
 from __future__ import annotations
@@ -153,8 +159,8 @@ def third_near(index: np.ndarray, cell: int, k: int, rows: np.ndarray, cols: np.
     Each cell of ``cell x cell`` pixels of the region map ``index`` gets a
     64-bit mask of its regions (bit ``r % 64``: two regions may share a
     bit, so the answer errs only towards yes); a pixel reads the union of
-    the masks of the cells within ``k`` of its own. The device computes the
-    same masks (:func:`tpsv.gpu.coverage._region_masks`).
+    the masks of the cells within ``k`` of its own. The device keeps such
+    masks per search cell (``tpsv.gpu.coverage._cell_regions``, ``_gather_masks``).
 
     Parameters
     ----------
@@ -499,9 +505,9 @@ class Borders:
         far side is the point's own region). Nor is a piece beyond the
         region's :attr:`limit`. Each point is measured to the ``k[i]`` pieces
         nearest it by midpoint; where none of those is a border, to 64, then 4
-        times as many (up to :data:`MAX_REJECTED`), until one is or the pieces left lie beyond the limit
-        (with :attr:`exact`, also until the pieces left lie beyond the best);
-        where none is, the nearest piece.
+        times as many (up to :data:`MAX_REJECTED`), until one is or the
+        pieces left lie beyond the limit (with :attr:`exact`, also until
+        the pieces left lie beyond the best); where none is, the nearest piece.
         """
         n = len(p)
         foot = np.zeros((n, 2))
@@ -662,5 +668,6 @@ class Borders:
         return other, toward
 
 
-__all__ = ["BorderMix", "Borders", "FAR_NEAREST", "MAX_PIECES", "NEAREST", "PIECE_PX", "edge_widths", "outline_pieces",
-           "MASK_CELL", "MAX_REJECTED", "MAX_VISIT", "near_cells", "piece_counts", "region_limits", "SECOND_LEAST", "shares", "third_near"]
+__all__ = ["BorderMix", "Borders", "FAR_NEAREST", "MASK_CELL", "MAX_PIECES", "MAX_REJECTED", "MAX_VISIT", "NEAREST",
+           "PIECE_PX", "SECOND_LEAST", "edge_widths", "near_cells", "outline_pieces", "piece_counts", "region_limits",
+           "shares", "third_near"]
