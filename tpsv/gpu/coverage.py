@@ -585,17 +585,16 @@ def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), off
 @wp.kernel
 def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
-             keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int, bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
+             limit2: wp.array(dtype=wp.float64), keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64),
+             n_regions: int, bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
              keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32),
              other2: wp.array(dtype=wp.int32), alpha2: wp.array(dtype=wp.float32),
-             masks: wp.array2d(dtype=wp.uint64), near: wp.array2d(dtype=wp.uint64), mrow0: int,
-             need: wp.array(dtype=wp.int32), cover: wp.array(dtype=wp.float64), toward: wp.array(dtype=wp.vec2d)):
-    """Each candidate: nearest border piece, region across, coverage; ``keep`` 1 where it mixes, ``need`` 1
-    where a second border may count (its coverage and the point across kept for :func:`_measure_second`).
+             masks: wp.array2d(dtype=wp.uint64), near: wp.array2d(dtype=wp.uint64), mrow0: int):
+    """Each candidate: nearest border piece, region across, coverage, a second border; ``keep`` 1 where it mixes.
 
-    ``near``: the regions near each search cell (:func:`_cell_regions`) gathered over the cells a second
-    border's search from the cell may read (:func:`_gather_masks`).
+    ``masks``: the regions near each search cell (:func:`_cell_regions`), ``near`` the same gathered over
+    the cells a second border's search from the cell may read (:func:`_gather_masks`).
     """
     i = wp.tid()
     W = index.shape[1]
@@ -604,7 +603,6 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     x = p - yy * W
     y = y0 + yy
     keep[i] = 0
-    need[i] = 0
     mine = index[y - iy0, x]
     lim = limit[mine]
     px = wp.float64(x) + wp.float64(0.5)
@@ -631,82 +629,46 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
             if s < _MIXED:
                 keep[i] = 1
                 other[i] = o
-                alpha[i] = wp.float32(s)
-                other2[i] = -1
-                alpha2[i] = wp.float32(1.0)
-                # a second border (Borders._second), searched by _measure_second where one may count: where
-                # the first leaves the pixel at least SECOND_LEAST (a second border is no nearer) and a
-                # third region lies within reach of some cell the search would read
-                if s < _SECOND:
-                    two = (wp.uint64(1) << wp.uint64(mine % 64)) | (wp.uint64(1) << wp.uint64(o % 64))
-                    look = int(1)
-                    mr = y / cell - mrow0
-                    if mr >= 0 and mr < near.shape[0]:
-                        m = near[mr, x / cell]
-                        if (m & two) == m:
-                            look = 0
-                    if look != 0:
-                        need[i] = 1
-                        cover[i] = s
-                        toward[i] = wp.vec2d(tx, ty)
-
-
-@wp.kernel
-def _measure_second(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32),
-                    gw: int, gh: int, cell: int, slack: wp.float64, rows: int, limit2: wp.array(dtype=wp.float64),
-                    keys: wp.array(dtype=wp.int64), sigma: wp.array(dtype=wp.float64), n_regions: int,
-                    bmap: wp.array2d(dtype=wp.float64), bcw: wp.float64, bch: wp.float64, has_map: int,
-                    index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
-                    which: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
-                    cover: wp.array(dtype=wp.float64), toward: wp.array(dtype=wp.vec2d),
-                    alpha: wp.array(dtype=wp.float32), other2: wp.array(dtype=wp.int32),
-                    alpha2: wp.array(dtype=wp.float32), masks: wp.array2d(dtype=wp.uint64), mrow0: int):
-    """The second border of the candidates :func:`_measure` marked (``which``: their indices), and the shares."""
-    i = which[wp.tid()]
-    W = index.shape[1]
-    p = cand[i]
-    yy = p / W
-    x = p - yy * W
-    y = y0 + yy
-    mine = index[y - iy0, x]
-    o = other[i]
-    s = cover[i]
-    px = wp.float64(x) + wp.float64(0.5)
-    py = wp.float64(y) + wp.float64(0.5)
-    lim2 = limit2[mine]
-    two = (wp.uint64(1) << wp.uint64(mine % 64)) | (wp.uint64(1) << wp.uint64(o % 64))
-    dist2, gx, gy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
-                             wp.float64(-1.0), masks, mrow0, two, 1)
-    if dist2 < lim2:
-        r2 = _beyond(index, iy0, px, py, gx, gy, dist2)
-        hx, hy = _beyond_point(px, py, gx, gy, dist2)
-        t = toward[i]
-        v1x = t[0] - px
-        v1y = t[1] - py
-        v2x = hx - px
-        v2y = hy - py
-        dot = (v1x * v2x + v1y * v2y) / wp.max(wp.sqrt(v1x * v1x + v1y * v1y)
-                                              * wp.sqrt(v2x * v2x + v2y * v2y), wp.float64(1e-300))
-        w2 = wp.float64(0.0)
-        if has_map != 0:
-            w2 = _blur_at(bmap, bcw, bch, gx, gy)
-        else:
-            w2 = wp.max(_sigma(keys, sigma, n_regions, mine, r2), _sigma(keys, sigma, n_regions, o, r2))
-        c2 = _coverage(dist2, w2)
-        if c2 < _SECOND:
-            gamma = wp.max(wp.float64(0.0), wp.float64(1.0) - s
-                           - wp.float64(0.5) * (wp.float64(1.0) + dot) * (wp.float64(1.0) - c2))
-            other2[i] = r2
-            alpha[i] = wp.float32(wp.float64(1.0) - gamma / wp.max(c2, wp.float64(1e-12)))
-            alpha2[i] = wp.float32(c2)
-
-
-@wp.kernel
-def _which(need: wp.array(dtype=wp.int32), offs: wp.array(dtype=wp.int32), which: wp.array(dtype=wp.int32)):
-    """The indices of the marked candidates, compacted by the prefix sum ``offs`` of ``need``."""
-    i = wp.tid()
-    if need[i] != 0:
-        which[offs[i] - 1] = i
+                # a second border (Borders._second)
+                o2 = int(-1)
+                a1 = s
+                a2 = wp.float64(1.0)
+                # (a second border is no nearer than the first: it counts only where the first does)
+                lim2 = limit2[mine]
+                if s >= _SECOND:
+                    lim2 = wp.float64(0.0)
+                two = (wp.uint64(1) << wp.uint64(mine % 64)) | (wp.uint64(1) << wp.uint64(o % 64))
+                mr = y / cell - mrow0
+                if mr >= 0 and mr < near.shape[0]:
+                    m = near[mr, x / cell]
+                    if (m & two) == m:
+                        lim2 = wp.float64(0.0)  # no third region within the reach of any cell's pieces
+                dist2, gx, gy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
+                                         wp.float64(-1.0), masks, mrow0, two, 1)
+                if dist2 < lim2:
+                    r2 = _beyond(index, iy0, px, py, gx, gy, dist2)
+                    hx, hy = _beyond_point(px, py, gx, gy, dist2)
+                    v1x = tx - px
+                    v1y = ty - py
+                    v2x = hx - px
+                    v2y = hy - py
+                    dot = (v1x * v2x + v1y * v2y) / wp.max(wp.sqrt(v1x * v1x + v1y * v1y)
+                                                          * wp.sqrt(v2x * v2x + v2y * v2y), wp.float64(1e-300))
+                    w2 = wp.float64(0.0)
+                    if has_map != 0:
+                        w2 = _blur_at(bmap, bcw, bch, gx, gy)
+                    else:
+                        w2 = wp.max(_sigma(keys, sigma, n_regions, mine, r2), _sigma(keys, sigma, n_regions, o, r2))
+                    c2 = _coverage(dist2, w2)
+                    if c2 < _SECOND:
+                        gamma = wp.max(wp.float64(0.0), wp.float64(1.0) - s
+                                       - wp.float64(0.5) * (wp.float64(1.0) + dot) * (wp.float64(1.0) - c2))
+                        o2 = r2
+                        a1 = wp.float64(1.0) - gamma / wp.max(c2, wp.float64(1e-12))
+                        a2 = c2
+                alpha[i] = wp.float32(a1)
+                other2[i] = o2
+                alpha2[i] = wp.float32(a2)
 
 
 @wp.kernel
@@ -991,34 +953,14 @@ class DeviceBorders:
         alpha = wp.empty(nc, dtype=wp.float32, device=dev)
         other2 = wp.empty(nc, dtype=wp.int32, device=dev)
         alpha2 = wp.empty(nc, dtype=wp.float32, device=dev)
-        need = wp.empty(nc, dtype=wp.int32, device=dev)
-        cover = wp.empty(nc, dtype=wp.float64, device=dev)
-        toward = wp.empty(nc, dtype=wp.vec2d, device=dev)
 
         def launch_measure(i0, i1):
-            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.keys, g.sigma, g.n_regions, g.bmap,
+            wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.limit2, g.keys, g.sigma, g.n_regions, g.bmap,
                                                      wp.float64(g.bcw), wp.float64(g.bch), g.has_map, index_d, iy0, a,
                                                      cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1],
-                                                     other2[i0:i1], alpha2[i0:i1], masks, near, mrow0, need[i0:i1],
-                                                     cover[i0:i1], toward[i0:i1]], device=dev)
+                                                     other2[i0:i1], alpha2[i0:i1], masks, near, mrow0], device=dev)
 
         _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
-        # the second borders, over the candidates that need one (few: threads that search alike)
-        noffs = wp.empty(nc, dtype=wp.int32, device=dev)
-        wp.utils.array_scan(need, noffs, inclusive=True)
-        nn = int(noffs[nc - 1:].numpy()[0])
-        if nn:
-            which = wp.empty(nn, dtype=wp.int32, device=dev)
-            wp.launch(_which, dim=nc, inputs=[need, noffs, which], device=dev)
-
-            def launch_second(i0, i1):
-                wp.launch(_measure_second, dim=i1 - i0,
-                          inputs=[*g.search(), g.limit2, g.keys, g.sigma, g.n_regions, g.bmap, wp.float64(g.bcw),
-                                  wp.float64(g.bch), g.has_map, index_d, iy0, a, cand, which[i0:i1], other, cover,
-                                  toward, alpha, other2, alpha2, masks, mrow0], device=dev)
-
-            _launch_banded(_measure_second, nn, nn >= _BAND_MIN // 16, dev, threads, launch_second)
-        del noffs, need, cover, toward
         koffs = wp.empty(nc, dtype=wp.int32, device=dev)
         wp.utils.array_scan(keep, koffs, inclusive=True)
         nk = int(koffs[nc - 1:].numpy()[0])
