@@ -940,12 +940,12 @@ class DeviceBorders:
             wp.launch(_cell_regions, dim=masks.shape, inputs=[rows_m, iy0, g.cell, mrow0, edge, masks], device=dev)
             del rows_m
             near = wp.empty_like(masks)
+            along = wp.empty_like(masks)
             k = int(np.ceil((self._reach2 + g.slack) / g.cell)) + 1
-            wp.launch(_gather_row, dim=masks.shape, inputs=[masks, k, near], device=dev)
-            rows_m = wp.clone(near)
-            wp.launch(_gather_masks, dim=masks.shape, inputs=[rows_m, k, int(mrow0 > 0), int(mrow1 < g.gh - 1), near],
+            wp.launch(_gather_row, dim=masks.shape, inputs=[masks, k, along], device=dev)
+            wp.launch(_gather_masks, dim=masks.shape, inputs=[along, k, int(mrow0 > 0), int(mrow1 < g.gh - 1), near],
                       device=dev)
-            del rows_m
+            del along
         else:
             near = masks
         keep = wp.empty(nc, dtype=wp.int32, device=dev)
