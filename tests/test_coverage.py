@@ -189,13 +189,12 @@ def test_bands_are_the_frame(blur):
         band = db.mix(idx[y0:y1], y0, halo)
         # the same band as a row range of the frame's map on the device
         rows = db.mix_device(frame_d, 0, band=(y0, y1)).numpy()
-        for a, b in ((band, rows),):
-            assert np.array_equal(a.pixels, b.pixels) and np.array_equal(a.other, b.other)
-            assert np.array_equal(a.alpha, b.alpha) and np.array_equal(a.xy, b.xy)
-        got.append((band.pixels + y0 * W, band.other, band.alpha, band.xy))
-    pixels, other, alpha, xy = (np.concatenate(v) for v in zip(*got))
-    assert np.array_equal(pixels, frame.pixels) and np.array_equal(other, frame.other)
-    assert np.array_equal(alpha, frame.alpha) and np.array_equal(xy, frame.xy)
+        for f in ("pixels", "other", "alpha", "xy", "other2", "alpha2"):
+            assert np.array_equal(getattr(band, f), getattr(rows, f)), f
+        got.append((band.pixels + y0 * W, band.other, band.alpha, band.xy, band.other2, band.alpha2))
+    for f, v in zip(("pixels", "other", "alpha", "xy", "other2", "alpha2"), zip(*got)):
+        assert np.array_equal(np.concatenate(v), getattr(frame, f)), f
+    assert blur is None or (frame.other2 >= 0).any()
 
 
 def test_pixels_of_no_region_and_threads(monkeypatch):
