@@ -203,10 +203,10 @@ def _beyond(index: wp.array2d(dtype=wp.int32), iy0: int, px: wp.float64, py: wp.
 
 @wp.func
 def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp.float64, bmid2: wp.float64,
-           fx: wp.float64, fy: wp.float64, index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int,
-           free2: wp.float64):
-    """One piece of :func:`_nearest`'s search: the best so far ``(best2, bmid2, fx, fy)``, updated, and 1 if it
-    was (-1: the piece was nearer but not a border)."""
+           fx: wp.float64, fy: wp.float64, vx: wp.float64, vy: wp.float64, index: wp.array2d(dtype=wp.int32),
+           iy0: int, mine: int, excl: int, free2: wp.float64):
+    """One piece of :func:`_nearest`'s search: the best so far ``(best2, bmid2, fx, fy, vx, vy)``, updated, and
+    1 if it was (-1: the piece was nearer but not a border)."""
     wx = px - p0[0]
     wy = py - p0[1]
     # the host's expression (Borders._nearest), in its order
@@ -230,8 +230,8 @@ def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp
             if not take:
                 took = -1
         if take:
-            return d2, m2, qx, qy, 1
-    return best2, bmid2, fx, fy, took
+            return d2, m2, qx, qy, dv[0], dv[1], 1
+    return best2, bmid2, fx, fy, vx, vy, took
 
 
 @wp.func
@@ -239,7 +239,8 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
              gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64,
              index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int, free2: wp.float64,
              masks: wp.array2d(dtype=wp.uint64), mrow0: int, two: wp.uint64, use_mask: int):
-    """Distance and foot of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else ``limit``).
+    """Distance, foot and vector of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else
+    ``limit``).
 
     A piece farther than ``sqrt(free2)`` counts only with another region
     than ``mine`` and ``excl`` just beyond it (:func:`_beyond`;
@@ -264,6 +265,8 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     bmid2 = wp.float64(1e300)
     fx = px
     fy = py
+    vx = wp.float64(0.0)
+    vy = wp.float64(0.0)
     visited = int(0)
     rejected = int(0)
     for j in range(rows):
@@ -287,8 +290,8 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                     visited = visited + hi - lo
                     for n in range(lo, hi):
                         if rejected < _MAX_REJECTED:
-                            best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, index,
-                                                                iy0, mine, excl, free2)
+                            best2, bmid2, fx, fy, vx, vy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, vx,
+                                                                        vy, index, iy0, mine, excl, free2)
                             if took > 0:
                                 found = 1
                             elif took < 0:
@@ -308,22 +311,23 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                             visited = visited + hi - lo
                             for n in range(lo, hi):
                                 if rejected < _MAX_REJECTED:
-                                    best2, bmid2, fx, fy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy,
-                                                                        index, iy0, mine, excl, free2)
+                                    best2, bmid2, fx, fy, vx, vy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx,
+                                                                                fy, vx, vy, index, iy0, mine, excl,
+                                                                                free2)
                                     if took > 0:
                                         found = 1
                                     elif took < 0:
                                         rejected = rejected + 1
                 if found != 0:
                     best = wp.sqrt(best2)
-    return best, fx, fy
+    return best, fx, fy, vx, vy
 
 
 @wp.func
 def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: int, px: wp.float64,
-            py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64):
-    """Region just beyond the pixel's nearest outline, else its nearest 8-neighbour of another region (-1: none),
-    and the point it was read at (``Borders._across``)."""
+            py: wp.float64, fx: wp.float64, fy: wp.float64, dist: wp.float64, vx: wp.float64, vy: wp.float64):
+    """Region just beyond the pixel's nearest outline (piece vector ``(vx, vy)``), else its nearest 8-neighbour
+    of another region (-1: none), and a point across (``Borders._across``)."""
     qx, qy = _beyond_point(px, py, fx, fy, dist)
     other = _region(index, int(wp.floor(qy)) - iy0, int(wp.floor(qx)))
     if other != mine and other >= 0:
@@ -332,8 +336,8 @@ def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: i
     # of another region whose centre is nearest that point, in the host's order on ties
     best = wp.float64(1e300)
     pick = int(-1)
-    tx = qx
-    ty = qy
+    cx = qx
+    cy = qy
     for n in range(8):
         dy = 0
         dx = 0
@@ -364,8 +368,21 @@ def _across(index: wp.array2d(dtype=wp.int32), iy0: int, x: int, y: int, mine: i
         if r != mine and r >= 0 and dd < best - wp.float64(1e-9):
             best = dd
             pick = r
-            tx = wp.float64(x + dx) + wp.float64(0.5)
-            ty = wp.float64(y + dy) + wp.float64(0.5)
+            cx = wp.float64(x + dx) + wp.float64(0.5)
+            cy = wp.float64(y + dy) + wp.float64(0.5)
+    tx = cx
+    ty = cy
+    if dist <= wp.float64(1e-9):
+        # on the outline the neighbour lies along a pixel axis, the border may not: the piece's normal,
+        # to the neighbour's side
+        m = wp.max(wp.sqrt(vx * vx + vy * vy), wp.float64(1e-300))
+        nx = -vy / m
+        ny = vx / m
+        if (cx - px) * nx + (cy - py) * ny < wp.float64(0.0):
+            nx = -nx
+            ny = -ny
+        tx = px + nx
+        ty = py + ny
     return pick, tx, ty
 
 
@@ -611,14 +628,14 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     free2 = wp.float64(-1.0)
     if _next_to_other(index, y - iy0, x, mine) != 0:
         free2 = wp.float64(0.5625)
-    dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1, free2, masks,
-                            mrow0, wp.uint64(0), 0)
+    dist, fx, fy, vx, vy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1, free2,
+                                    masks, mrow0, wp.uint64(0), 0)
     if dist >= lim:
         # no border piece: the nearest piece
-        dist, fx, fy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1,
-                                wp.float64(1e300), masks, mrow0, wp.uint64(0), 0)
+        dist, fx, fy, vx, vy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1,
+                                        wp.float64(1e300), masks, mrow0, wp.uint64(0), 0)
     if dist < lim:
-        o, tx, ty = _across(index, iy0, x, y, mine, px, py, fx, fy, dist)
+        o, tx, ty = _across(index, iy0, x, y, mine, px, py, fx, fy, dist, vx, vy)
         if o >= 0:
             w = wp.float64(0.0)
             if has_map != 0:
@@ -643,8 +660,8 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                     m = near[mr, x / cell]
                     if (m & two) == m:
                         lim2 = wp.float64(0.0)  # no third region within the reach of any cell's pieces
-                dist2, gx, gy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
-                                         wp.float64(-1.0), masks, mrow0, two, 1)
+                dist2, gx, gy, ux, uy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
+                                                 wp.float64(-1.0), masks, mrow0, two, 1)
                 if dist2 < lim2:
                     r2 = _beyond(index, iy0, px, py, gx, gy, dist2)
                     hx, hy = _beyond_point(px, py, gx, gy, dist2)

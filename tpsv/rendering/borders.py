@@ -434,12 +434,12 @@ class Borders:
         mine = index[ys, xs]
         k = np.r_[np.full(len(ys) - len(fy), NEAREST), np.full(len(fy), FAR_NEAREST)]
         beside = np.arange(len(ys)) < len(ys) - len(fy)
-        f, dmin = self._nearest_border(ext, top, mine, p, k, beside, y0)
+        f, dmin, vec = self._nearest_border(ext, top, mine, p, k, beside, y0)
         keep = dmin < self.limit[mine]
         if not keep.any():
             return BorderMix.none()
-        p, f, dmin, ys, xs, mine = p[keep], f[keep], dmin[keep], ys[keep], xs[keep], mine[keep]
-        other, toward = self._across(ext, top, mine, p, f, dmin, ys, xs, y0)
+        p, f, dmin, ys, xs, mine, vec = p[keep], f[keep], dmin[keep], ys[keep], xs[keep], mine[keep], vec[keep]
+        other, toward = self._across(ext, top, mine, p, f, dmin, vec, ys, xs, y0)
         ok = other >= 0
         p, f, dmin, ys, xs, other, mine, toward = (p[ok], f[ok], dmin[ok], ys[ok], xs[ok], other[ok], mine[ok],
                                                    toward[ok])
@@ -486,17 +486,18 @@ class Borders:
         other2[i], alpha[i], alpha2[i] = r2[two], a[two], a2[two]
         return other2, alpha, alpha2
 
-    def _nearest(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(p, foot, distance)``: each point's foot on the nearest of its ``k`` nearest pieces (by midpoint)."""
+    def _nearest(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(p, foot, distance, vector)``: each point's foot on the nearest of its ``k`` nearest pieces (by
+        midpoint), and that piece's vector."""
         if not len(p):
-            return p, p.copy(), np.zeros(0)
-        foot, dist, _ = self._feet(p, k)
+            return p, p.copy(), np.zeros(0), p.copy()
+        foot, dist, _, vec = self._feet(p, k)
         best = np.argmin(dist, axis=1)
         rows = np.arange(len(p))
-        return p, foot[rows, best], dist[rows, best]
+        return p, foot[rows, best], dist[rows, best], vec[rows, best]
 
     def _nearest_border(self, ext, top, mine, p, k, beside, y0):
-        """``(foot, distance)`` of each point on its nearest border piece.
+        """``(foot, distance, vector)`` of each point on its nearest border piece (the piece's vector).
 
         A piece is a border for the point only with another region just
         beyond it (:meth:`_beyond`), or within 0.75 px of a point ``beside``
@@ -511,6 +512,7 @@ class Borders:
         """
         n = len(p)
         foot = np.zeros((n, 2))
+        vec = np.zeros((n, 2))
         dist = np.full(n, np.inf)
         lim = self.limit[mine]
         rows, kk = np.arange(n), k
@@ -518,7 +520,7 @@ class Borders:
             nxt = []
             for kn in np.unique(kk):
                 r_ = rows[kk == kn]
-                f, d, far = self._feet(p[r_], int(kn))
+                f, d, far, v = self._feet(p[r_], int(kn))
                 m = mine[r_][:, None]
                 r = self._beyond(ext, top, p[r_][:, None, :], f, d, y0)
                 ok = (((d <= 0.75) & beside[r_][:, None]) | ((r != m) & (r >= 0))) & (d < lim[r_][:, None])
@@ -527,6 +529,7 @@ class Borders:
                 found = ok[i, best]
                 foot[r_[found]] = f[i, best][found]
                 dist[r_[found]] = d[i, best][found]
+                vec[r_[found]] = v[i, best][found]
                 # a piece nearer than the best so far (or the limit) has its midpoint within that + slack
                 bound = np.where(found, dist[r_], lim[r_]) if self.exact else np.where(found, -np.inf, lim[r_])
                 more = (far <= bound + self.slack) & (kn < min(self.tree.n, MAX_REJECTED))
@@ -535,8 +538,8 @@ class Borders:
             kk = np.concatenate([v for _, v in nxt]) if nxt else np.zeros(0, np.int64)
         todo = np.flatnonzero(~np.isfinite(dist))
         if todo.size:
-            _, foot[todo], dist[todo] = self._nearest(p[todo], NEAREST)
-        return foot, dist
+            _, foot[todo], dist[todo], vec[todo] = self._nearest(p[todo], NEAREST)
+        return foot, dist, vec
 
     def _second_border(self, ext, top, mine, other, p, y0):
         """The nearest piece of each point with neither ``mine`` nor ``other`` just beyond it, within
@@ -595,9 +598,10 @@ class Borders:
         qy = np.clip(np.floor(q[..., 1]).astype(np.int64) - y0 + top, 0, H - 1)
         return ext[qy, qx + 1]
 
-    def _feet(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _feet(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Feet ``(n, k, 2)`` and distances ``(n, k)`` of each point on its ``k`` pieces nearest by
-        midpoint, and the distance to the farthest of those midpoints ``(n,)``."""
+        midpoint, the distance to the farthest of those midpoints ``(n,)``, and the pieces' vectors
+        ``(n, k, 2)``."""
         k = min(k, self.tree.n)
         mid, near = self.tree.query(p, k=k, workers=-1)
         near = near.reshape(len(p), k)
@@ -607,7 +611,7 @@ class Borders:
         t = np.clip((w * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
         foot = a + t[..., None] * d
         off = p[:, None, :] - foot
-        return foot, np.sqrt(off[..., 0] ** 2 + off[..., 1] ** 2), np.asarray(mid).reshape(len(p), k)[:, -1]
+        return foot, np.sqrt(off[..., 0] ** 2 + off[..., 1] ** 2), np.asarray(mid).reshape(len(p), k)[:, -1], d
 
     def _sigma(self, a: np.ndarray, b: np.ndarray, foot: np.ndarray) -> np.ndarray:
         """Edge width (output px) of the border between regions ``a`` and ``b`` at its points ``foot``
@@ -637,10 +641,11 @@ class Borders:
 
         return np.where(sigma > 1e-3, F(d + 0.5) - F(d - 0.5), sharp)
 
-    def _across(self, ext, top, mine, p, f, dist, ys, xs, y0):
-        """Region just beyond each pixel's nearest outline, else its nearest 8-neighbour of another region;
-        and the point it was read at (that neighbour's centre): the direction across, defined also for a
-        pixel centre on the outline."""
+    def _across(self, ext, top, mine, p, f, dist, vec, ys, xs, y0):
+        """Region just beyond each pixel's nearest outline (piece vector ``vec``), else its nearest
+        8-neighbour of another region; and a point across: where the region was read (a little beyond
+        the foot, or that neighbour's centre), or for a pixel centre on the outline one step along the
+        piece's normal, on the neighbour's side."""
         H, W = ext.shape[0], ext.shape[1] - 2
         q = self._beyond_point(p, f, dist)
         qx = np.clip(np.floor(q[:, 0]).astype(np.int64), -1, W)
@@ -654,6 +659,7 @@ class Borders:
             ib = np.flatnonzero(bad)
             best = np.full(len(ib), np.inf)
             pick = np.full(len(ib), -1, np.int64)
+            centre = q[ib].copy()
             for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
                 r = ext[np.clip(top + ys[ib] + dy, 0, H - 1), 1 + xs[ib] + dx]
                 c = np.column_stack([xs[ib] + dx + 0.5, ys[ib] + y0 + dy + 0.5])
@@ -662,9 +668,18 @@ class Borders:
                 take = (r != mine[ib]) & (r >= 0) & (dd < best - 1e-9)  # (near ties: the first, on any rounding)
                 best[take] = dd[take]
                 pick[take] = r[take]
-                toward[ib[take]] = c[take]
+                centre[take] = c[take]
             other = other.copy()
             other[ib] = pick
+            toward[ib] = centre
+            on = dist[ib] <= 1e-9
+            if on.any():
+                # on the outline the neighbour lies along a pixel axis, the border may not: the piece's
+                # normal, to the neighbour's side
+                i, v = ib[on], vec[ib[on]]
+                n = np.column_stack([-v[:, 1], v[:, 0]]) / np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-300)[:, None]
+                side = np.where(((centre[on] - p[i]) * n).sum(1) < 0.0, -1.0, 1.0)
+                toward[i] = p[i] + side[:, None] * n
         return other, toward
 
 
