@@ -235,6 +235,25 @@ def _piece(p0: wp.vec2d, dv: wp.vec2d, px: wp.float64, py: wp.float64, best2: wp
 
 
 @wp.func
+def _run(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), lo: int, end: int, px: wp.float64,
+         py: wp.float64, best2: wp.float64, bmid2: wp.float64, fx: wp.float64, fy: wp.float64, vx: wp.float64,
+         vy: wp.float64, found: int, visited: int, rejected: int, index: wp.array2d(dtype=wp.int32), iy0: int,
+         mine: int, excl: int, free2: wp.float64):
+    """The pieces ``lo .. end`` (one run of cells) through :func:`_piece`, within the search's caps: the best
+    so far, whether it changed, and the pieces visited and rejected, updated."""
+    hi = wp.max(lo, wp.min(end, lo + _MAX_VISIT - visited))
+    for n in range(lo, hi):
+        if rejected < _MAX_REJECTED:
+            best2, bmid2, fx, fy, vx, vy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, vx, vy, index,
+                                                        iy0, mine, excl, free2)
+            if took > 0:
+                found = 1
+            elif took < 0:
+                rejected = rejected + 1
+    return best2, bmid2, fx, fy, vx, vy, found, visited + hi - lo, rejected
+
+
+@wp.func
 def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, x: int, y: int, limit: wp.float64,
              index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int, free2: wp.float64,
@@ -285,17 +304,9 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                 x1 = wp.clamp(int(wp.floor((px + half) / wp.float64(cell))), 0, gw - 1)
                 found = int(0)
                 if use_mask == 0:
-                    lo = start[row * gw + x0]
-                    hi = wp.max(lo, wp.min(start[row * gw + x1 + 1], lo + _MAX_VISIT - visited))
-                    visited = visited + hi - lo
-                    for n in range(lo, hi):
-                        if rejected < _MAX_REJECTED:
-                            best2, bmid2, fx, fy, vx, vy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx, fy, vx,
-                                                                        vy, index, iy0, mine, excl, free2)
-                            if took > 0:
-                                found = 1
-                            elif took < 0:
-                                rejected = rejected + 1
+                    best2, bmid2, fx, fy, vx, vy, found, visited, rejected = _run(
+                        a, d, start[row * gw + x0], start[row * gw + x1 + 1], px, py, best2, bmid2, fx, fy, vx, vy,
+                        found, visited, rejected, index, iy0, mine, excl, free2)
                 else:
                     for cx in range(x0, x1 + 1):
                         m = wp.uint64(0)
@@ -306,18 +317,9 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                             m = ~two  # (beyond the masks' rows: every cell is looked at)
                         # no region but mine and excl near the cell: no piece of it counts
                         if (m & two) != m:
-                            lo = start[row * gw + cx]
-                            hi = wp.max(lo, wp.min(start[row * gw + cx + 1], lo + _MAX_VISIT - visited))
-                            visited = visited + hi - lo
-                            for n in range(lo, hi):
-                                if rejected < _MAX_REJECTED:
-                                    best2, bmid2, fx, fy, vx, vy, took = _piece(a[n], d[n], px, py, best2, bmid2, fx,
-                                                                                fy, vx, vy, index, iy0, mine, excl,
-                                                                                free2)
-                                    if took > 0:
-                                        found = 1
-                                    elif took < 0:
-                                        rejected = rejected + 1
+                            best2, bmid2, fx, fy, vx, vy, found, visited, rejected = _run(
+                                a, d, start[row * gw + cx], start[row * gw + cx + 1], px, py, best2, bmid2, fx, fy,
+                                vx, vy, found, visited, rejected, index, iy0, mine, excl, free2)
                 if found != 0:
                     best = wp.sqrt(best2)
     return best, fx, fy, vx, vy

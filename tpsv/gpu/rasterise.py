@@ -481,7 +481,7 @@ def rasterise_dirty(
     return int(counts.numpy().sum())
 
 
-def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2=None, threads: int | None = None,
+def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2, threads: int | None = None,
                clamp: bool = True) -> wp.array:
     """Mix the regions across borders into border pixels of a rasterised frame, in place (sRGB).
 
@@ -496,7 +496,7 @@ def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2=None, threads: int
         and the shares (:class:`tpsv.rendering.borders.BorderMix`).
     st, st2 : array_like (n, 2)
         Normalised ``(S, T)`` of each pixel in ``mix.other``'s and ``mix.other2``'s
-        patch (``st2`` read only where ``other2`` is a region; None: none is).
+        patch (``st2`` read only where ``other2`` is a region).
     threads, clamp
         As :func:`rasterise`.
 
@@ -513,11 +513,11 @@ def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2=None, threads: int
     def up(v, dtype, shape=(-1,)):
         return wp.array(np.ascontiguousarray(v).reshape(shape), dtype=dtype, device=dev)
 
-    st2 = np.zeros((n, 2), np.float32) if st2 is None else np.asarray(st2, np.float32)
     return mix_border_device(dk, out, up(mix.pixels.astype(np.int32), wp.int32),
                              up(mix.other.astype(np.int32), wp.int32), up(np.asarray(st, np.float32), wp.vec2f, (-1, 2)),
                              up(mix.alpha.astype(np.float32), wp.float32), up(mix.other2.astype(np.int32), wp.int32),
-                             up(st2, wp.vec2f, (-1, 2)), up(mix.alpha2.astype(np.float32), wp.float32), threads, clamp)
+                             up(np.asarray(st2, np.float32), wp.vec2f, (-1, 2)), up(mix.alpha2.astype(np.float32),
+                                                                                     wp.float32), threads, clamp)
 
 
 def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, oth2_d, st2_d, al2_d,

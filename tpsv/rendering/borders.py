@@ -590,13 +590,17 @@ class Borders:
         return np.where((dist > 0.75)[..., None], f + 0.75 * away, 2.0 * f - p)
 
     @staticmethod
-    def _beyond(ext, top, p, f, dist, y0):
-        """Region at :meth:`_beyond_point` (rows and columns beyond the map repeat its edge)."""
+    def _region_at(ext, top, q, y0):
+        """Region of the pixels holding points ``q`` (rows and columns beyond the map repeat its edge)."""
         H, W = ext.shape[0], ext.shape[1] - 2
-        q = Borders._beyond_point(p, f, dist)
         qx = np.clip(np.floor(q[..., 0]).astype(np.int64), -1, W)
         qy = np.clip(np.floor(q[..., 1]).astype(np.int64) - y0 + top, 0, H - 1)
         return ext[qy, qx + 1]
+
+    @staticmethod
+    def _beyond(ext, top, p, f, dist, y0):
+        """Region at :meth:`_beyond_point`."""
+        return Borders._region_at(ext, top, Borders._beyond_point(p, f, dist), y0)
 
     def _feet(self, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Feet ``(n, k, 2)`` and distances ``(n, k)`` of each point on its ``k`` pieces nearest by
@@ -646,11 +650,9 @@ class Borders:
         8-neighbour of another region; and a point across: where the region was read (a little beyond
         the foot, or that neighbour's centre), or for a pixel centre on the outline one step along the
         piece's normal, on the neighbour's side."""
-        H, W = ext.shape[0], ext.shape[1] - 2
+        H = ext.shape[0]
         q = self._beyond_point(p, f, dist)
-        qx = np.clip(np.floor(q[:, 0]).astype(np.int64), -1, W)
-        qy = np.clip(np.floor(q[:, 1]).astype(np.int64) - y0 + top, 0, H - 1)
-        other = ext[qy, qx + 1]
+        other = self._region_at(ext, top, q, y0)
         toward = q.copy()
         bad = (other == mine) | (other < 0)
         if bad.any():

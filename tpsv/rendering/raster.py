@@ -357,12 +357,8 @@ def border_st(model, borders, device, patch_set=None) -> tuple[np.ndarray, np.nd
     from ..gpu.patchmap import inverse_points
 
     patches = [r.patch for r in model.regions]
-    st = inverse_points(patches, borders.other, borders.xy, device=device, patch_set=patch_set)
-    st2 = np.zeros_like(st)
-    two = np.flatnonzero(borders.other2 >= 0)
-    if two.size:
-        st2[two] = inverse_points(patches, borders.other2[two], borders.xy[two], device=device, patch_set=patch_set)
-    return st, st2
+    return tuple(inverse_points(patches, other, borders.xy, device=device, patch_set=patch_set)
+                 for other in (borders.other, borders.other2))
 
 
 def device_detail(model, device: str):
