@@ -68,6 +68,7 @@ from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
 from .rasterise import _BAND_MIN, _launch_banded
+from .transfer import upload
 
 wp.set_module_options({"enable_backward": False})
 
@@ -819,17 +820,15 @@ class DeviceBorders:
             acell, aw, apart_d = 1, 1, wp.zeros(1, dtype=wp.float32, device=self.device)
 
         dev = self.device
-        keys_d = wp.array(keys, dtype=wp.int64, device=dev)
-        sigma_d = wp.array(sigma.astype(np.float64), dtype=wp.float64, device=dev)
         lim1, lim2 = region_limits(nr, keys, sigma, bmap, self.reach_px)
         self._reach2 = float(lim2.max(initial=0.0))
-        limit = wp.array(lim1, dtype=wp.float64, device=dev)
-        limit2 = wp.array(lim2, dtype=wp.float64, device=dev)
+        keys_d, sigma_d, limit, limit2, bmap_d = upload(
+            dev, (keys, wp.int64), (sigma, wp.float64), (lim1, wp.float64), (lim2, wp.float64),
+            (np.zeros((1, 1)) if bmap is None else bmap[0], wp.float64))
         self.grid = PieceGrid(a=a, d=d, start=start, apart=apart_d, limit=limit, limit2=limit2, gw=gw, gh=gh, cell=cell,
                               aw=aw, acell=acell, slack=slack, rows=int(np.ceil((self.reach_px + slack) / cell)) + 2,
                               blurred=int(blurred), keys=keys_d, sigma=sigma_d, n_regions=nr,
-                              bmap=wp.array(np.zeros((1, 1)) if bmap is None else bmap[0], dtype=wp.float64,
-                                            device=dev),
+                              bmap=bmap_d,
                               bcw=1.0 if bmap is None else float(bmap[1]), bch=1.0 if bmap is None else float(bmap[2]),
                               has_map=int(bmap is not None))
         self.cell = cell

@@ -17,6 +17,7 @@ import warp as wp
 
 from ..model import DETAIL_GAIN, DETAIL_YCC, DETAIL_ZERO
 from .rasterise import _BAND_MIN, _as_region_map, _as_st_map, _launch_banded
+from .transfer import upload
 
 wp.set_module_options({"enable_backward": False, "fast_math": True})
 
@@ -139,12 +140,11 @@ class DeviceDetail:
 
     def __init__(self, detail, device: str):
         self.device = device
-        raw = wp.array(np.ascontiguousarray(detail.texels, np.uint16), dtype=wp.uint16, device=device)
+        raw, self.frame, self.mode = upload(device, (detail.texels, wp.uint16),
+                                            (np.asarray(detail.frame).reshape(-1, 2), wp.vec2f), (detail.mode, wp.int32))
         h, w = raw.shape[:2]
         self.tex = wp.empty((h, w), dtype=wp.vec3f, device=device)
         wp.launch(_residual, dim=(h, w), inputs=[raw, self.tex], device=device)
-        self.frame = wp.array(np.ascontiguousarray(detail.frame, np.float32).reshape(-1, 2), dtype=wp.vec2f, device=device)
-        self.mode = wp.array(np.asarray(detail.mode, np.int32), dtype=wp.int32, device=device)
 
 
 def add_detail(dd: DeviceDetail, out: wp.array, region, st, pixels=None, threads: int | None = None) -> None:

@@ -31,6 +31,7 @@ from ..threads import pool as host_pool
 from ..tps import kernel_lambda
 from . import resolve_device
 from . import warp as _warp
+from .transfer import upload as _send
 
 
 @wp.struct
@@ -130,14 +131,16 @@ def upload(ks, device: str = "cpu") -> DeviceKernels:
     R = int(ks.grid.shape[0])
     F = int(ks.st.shape[0])
 
-    def arr(a, dtype):
-        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
-
     def empty(shape, dtype):  # every entry the solver reads is written first
         return wp.empty(shape, dtype=dtype, device=device)
 
-    count = arr(ks.count.astype(np.int32), wp.int32)
-    frame32 = arr(ks.frame.astype(np.float32).reshape(n, 4), wp.vec4f)
+    # the kernel set's arrays in one transfer
+    count, frame32, index, degen, frame64, st, lab, lam, grid, fill = _send(
+        device,
+        (ks.count, wp.int32), (ks.frame.reshape(n, 4), wp.vec4f), (ks.index.reshape(n, K), wp.int32),
+        (ks.degenerate, wp.int32), (ks.frame.reshape(n, 4), wp.vec4d), (ks.st.reshape(F, 2), wp.vec2d),
+        (ks.lab.reshape(F, 3), wp.vec3f), (kernel_lambda(ks), wp.float64), (ks.grid.reshape(R, 3), wp.int32),
+        (ks.fill.reshape(R, 3), wp.vec3f))
     sol = _struct(
         Solution,
         pts=empty((n, K), wp.vec2d), pos32=empty((n, K), wp.vec2f),
@@ -147,19 +150,19 @@ def upload(ks, device: str = "cpu") -> DeviceKernels:
     )
     systems = _struct(
         Systems,
-        index=arr(ks.index.astype(np.int32).reshape(n, K), wp.int32),
+        index=index,
         count=count,
-        degen=arr(ks.degenerate.astype(np.int32), wp.int32),
-        frame64=arr(ks.frame.astype(np.float64).reshape(n, 4), wp.vec4d),
-        st=arr(ks.st.astype(np.float64).reshape(F, 2), wp.vec2d),
-        lab=arr(ks.lab.astype(np.float32).reshape(F, 3), wp.vec3f),
-        lam=arr(kernel_lambda(ks), wp.float64),
+        degen=degen,
+        frame64=frame64,
+        st=st,
+        lab=lab,
+        lam=lam,
         vals=empty((n, K), wp.vec3d), bary=empty((n, K), wp.vec3d), pa=empty((n, K), wp.vec3d),
     )
     blend = _struct(
         BlendArrays,
-        grid=arr(ks.grid.astype(np.int32).reshape(R, 3), wp.int32),
-        fill=arr(ks.fill.astype(np.float32).reshape(R, 3), wp.vec3f),
+        grid=grid,
+        fill=fill,
         half=0.5 + float(ks.overlap),
         count=count, frame32=frame32,
         pos32=sol.pos32, w32=sol.w32, b32=sol.b32, lo=sol.lo, hi=sol.hi,

@@ -39,6 +39,7 @@ import warp as wp
 from .. import memo
 from ..geometry.patch import affine_frame, coefficients
 from . import warp as _warp
+from .transfer import upload
 
 
 @wp.func
@@ -324,10 +325,8 @@ class PatchSet:
         pos = np.concatenate(pos_l, axis=0) if pos_l else np.zeros((1, 2))
         coef = np.concatenate(coef_l, axis=0) if coef_l else np.zeros((1, 2))
         arrays = PatchArrays()
-        arrays.pos = wp.array(pos.astype(np.float32), dtype=wp.vec2, device=device)
-        arrays.coef = wp.array(coef.astype(np.float32), dtype=wp.vec2, device=device)
-        arrays.reg_i = wp.array(reg_i, dtype=wp.int32, device=device)
-        arrays.reg_f = wp.array(reg_f, dtype=wp.float32, device=device)
+        arrays.pos, arrays.coef, arrays.reg_i, arrays.reg_f = upload(
+            device, (pos, wp.vec2), (coef, wp.vec2), (reg_i, wp.int32), (reg_f, wp.float32))
         return cls(arrays=arrays, device=device)
 
 

@@ -46,6 +46,7 @@ import numpy as np
 import warp as wp
 
 from ..rendering.borders import MAX_PIECES, piece_counts
+from .transfer import upload
 
 # fuse_fp off: the pieces must round as numpy's (no FMA), or a piece could move by an ulp on CUDA
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
@@ -276,8 +277,7 @@ class DevicePieces:
         nxt[ends - 1] = (ends - sizes).astype(np.int32)
         kx, ky = width / float(model.width), height / float(model.height)
         dev = device
-        points_d = wp.array(points, dtype=wp.vec2d, device=dev)
-        nxt_d = wp.array(nxt, dtype=wp.int32, device=dev)
+        points_d, nxt_d = upload(dev, (points, wp.vec2d), (nxt, wp.int32))
         counts = wp.empty(E, dtype=wp.int64, device=dev)
         info = wp.zeros(3, dtype=wp.float64, device=dev)
         wp.launch(_edge_counts, dim=E, inputs=[points_d, nxt_d, wp.float64(model.width), wp.float64(model.height),

@@ -52,6 +52,7 @@ from ..rendering.pixelmap import draw_order
 from . import resolve_device
 from . import warp as _warp
 from .rasterise import _BAND_MIN, _launch_banded
+from .transfer import upload
 
 # fuse_fp off: the crossing x must round as numpy's (no FMA), or edge pixels could flip on CUDA
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
@@ -363,15 +364,12 @@ class DeviceOutlines:
         if tot >= 2**31:
             raise TpsvError(f"outline too complex: {tot} edge bins")
         dev = self.device
-        f64 = lambda a: wp.array(np.ascontiguousarray(a, np.float64), dtype=wp.float64, device=dev)  # noqa: E731
-        i32 = lambda a: wp.array(np.ascontiguousarray(a, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
-        self._lut = i32(self._lut_host)
-        self._rowstart = wp.array(rowstart, dtype=wp.int64, device=dev)
-        self._arrays = [
-            f64(cov._xa), f64(cov._ya), f64(cov._xb), f64(cov._yb), i32(cov._reg), i32(g0), i32(g1),
-            i32(bstart), i32(e[order_e]), i32(cov._x0), i32(cov._y0), i32(cov._w), self._lut, i32(rank),
-            self._rowstart,
-        ]
+        f64, i32 = wp.float64, wp.int32
+        self._arrays = upload(
+            dev, (cov._xa, f64), (cov._ya, f64), (cov._xb, f64), (cov._yb, f64), (cov._reg, i32), (g0, i32),
+            (g1, i32), (bstart, i32), (e[order_e], i32), (cov._x0, i32), (cov._y0, i32), (cov._w, i32),
+            (self._lut_host, i32), (rank, i32), (rowstart, wp.int64))
+        self._lut, self._rowstart = self._arrays[12], self._arrays[14]
         n_cross = int(rowstart[-1])
         self._xs = wp.empty(max(n_cross, 1), dtype=wp.float64, device=dev)
         self._rs = wp.empty(max(n_cross, 1), dtype=wp.int32, device=dev)
