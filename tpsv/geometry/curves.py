@@ -85,27 +85,25 @@ def breaks(polys: list[np.ndarray], width: float, height: float) -> list[np.ndar
     vid[order] = np.cumsum(new) - 1
     nv = int(new.sum())
     # every undirected edge once (zero-length ones left out), then each vertex's distinct neighbours
-    start = np.cumsum([0] + sizes[:-1])
-    nxt = np.concatenate([np.roll(np.arange(n), -1) + s0 for n, s0 in zip(sizes, start)])
-    a, b = vid, vid[nxt]
+    size = np.repeat(sizes, sizes)
+    start = np.repeat(np.cumsum(sizes) - sizes, sizes)
+    local = np.arange(len(k)) - start
+    prev_i = start + (local - 1) % size
+    next_i = start + (local + 1) % size
+    a, b = vid, vid[next_i]
     real = a != b
     edges = np.unique(np.minimum(a, b)[real] * nv + np.maximum(a, b)[real])
     degree = np.bincount(np.concatenate([edges // nv, edges % nv]), minlength=nv)
-    out = []
-    for p, s0 in zip(polys, start):
-        n = len(p)
-        if n < 3:
-            out.append(np.ones(n, bool))
-            continue
-        u = p - np.roll(p, 1, axis=0)
-        v = np.roll(p, -1, axis=0) - p
-        norm = np.hypot(*u.T) * np.hypot(*v.T)
-        cos = (u * v).sum(axis=1) / np.maximum(norm, 1e-300)
-        corner = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
-        frame = (p[:, 0] <= 0) | (p[:, 0] >= width) | (p[:, 1] <= 0) | (p[:, 1] >= height)
-        junction = degree[vid[s0:s0 + n]] != 2
-        out.append(corner | frame | junction)
-    return out
+    # corners, frame vertices and junctions, for all polygons at once
+    p = np.concatenate(polys)
+    u = p - p[prev_i]
+    v = p[next_i] - p
+    norm = np.hypot(*u.T) * np.hypot(*v.T)
+    cos = (u * v).sum(axis=1) / np.maximum(norm, 1e-300)
+    corner = (norm == 0) | (cos < np.cos(np.radians(CORNER_TURN)))
+    frame = (p[:, 0] <= 0) | (p[:, 0] >= width) | (p[:, 1] <= 0) | (p[:, 1] >= height)
+    brk = corner | frame | (degree[vid] != 2) | (size < 3)
+    return np.split(brk, np.cumsum(sizes)[:-1])
 
 
 def hermite(p: np.ndarray, brk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -347,10 +345,16 @@ def _densify_all(polys: list[np.ndarray], brk: list[np.ndarray], tol: float,
         count = _pieces(p, nxt, m0, m1, tol * (total / max_pieces) ** 2)
     seg = np.repeat(np.arange(p.shape[0]), count)
     s = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)) / count[seg]
-    s = s[:, None]
     h00, h10, h01, h11 = _basis(s)
-    out = h00 * p[seg] + h10 * m0[seg] + h01 * nxt[seg] + h11 * m1[seg]
-    out[s[:, 0] == 0] = p[seg[s[:, 0] == 0]]  # vertices exactly as stored
+    out = np.empty((s.size, 2))
+    for c in range(2):  # a column at a time (contiguous), summed in the order of h00 p + h10 m0 + h01 q + h11 m1
+        col = h00 * p[:, c][seg]
+        col += h10 * m0[:, c][seg]
+        col += h01 * nxt[:, c][seg]
+        col += h11 * m1[:, c][seg]
+        out[:, c] = col
+    at = s == 0
+    out[at] = p[seg[at]]  # vertices exactly as stored
     # back into polygons: a polygon's pieces follow its vertices
     ends = np.cumsum(np.add.reduceat(count, np.cumsum(sizes) - sizes))
     pieces = iter(np.split(out, ends[:-1]))
