@@ -493,7 +493,8 @@ def _copy_rows(dst: DeviceKernels, src: DeviceKernels, src_row: np.ndarray) -> N
 
 
 def solve_reusing(ks, prev: DeviceKernels | None, reuse, device: str = "cpu", threads: int | None = None):
-    """Upload ``ks`` and solve only the kernels that cannot reuse an earlier solution.
+    """Upload ``ks`` and solve only the kernels that cannot reuse an earlier solution (on the CPU;
+    a GPU solves them all, which costs it less than the copies).
 
     Parameters
     ----------
@@ -524,8 +525,10 @@ def solve_reusing(ks, prev: DeviceKernels | None, reuse, device: str = "cpu", th
         reuse = np.full(n, -1, np.int64)
     todo = np.flatnonzero(reuse < 0)
     dk = upload(ks, device)
-    if n == 0 or todo.size > FULL_SOLVE_FRACTION * n:
-        # most kernels changed: solving all of them in place is cheaper than a subset and a copy
+    # Solving all in place is cheaper than a subset and two copies when most changed, and always on
+    # a GPU: it solves thousands of kernels in one pass (H100: 10 000 kernels in 2.9 ms, one of them
+    # as a subset in 4.8 ms; 4 kernels in 0.7 ms, one in 1.3 ms).
+    if n == 0 or todo.size > FULL_SOLVE_FRACTION * n or not wp.get_device(device).is_cpu:
         return solve(dk, threads=threads), n
     dk.A = None  # the full scratch matrix is not needed: only the subset is solved
     if todo.size < n:

@@ -18,7 +18,8 @@ kernels, the rendered image) and brings them up to date for a new model:
 3. **Solve.** A kernel whose system is identical to one already solved (same
    local points, colours, frame, count and smoothing: compared bit for bit)
    reuses that solution; the others are solved as a subset
-   (:func:`tpsv.gpu.tps.solve_reusing`).
+   (:func:`tpsv.gpu.tps.solve_reusing`). A GPU solves them all: one pass
+   costs it less than the subset's copies.
 4. **Rasterise.** Only dirty pixels are rasterised again: pixels of a region
    whose sub-patch grid changed, and pixels whose cell is within one cell of
    a re-solved kernel's cell (a kernel's support reaches at most half a cell
