@@ -40,7 +40,7 @@ def test_bench_tiny(tmp_path, small_png):
     assert set(m) >= {"tpsv", "bicubic", "lanczos"}
     assert all(0 <= m[k]["gmsd"] < 0.5 for k in ("tpsv", "bicubic", "lanczos"))
     fm = img["file_magnification"]
-    assert fm["bytes"] > 0 and all(0 <= fm[k]["gmsd"] < 0.5 for k in ("tpsv", "file_bicubic", "bicubic"))
+    assert fm["bytes"] > 0 and all(0 <= fm[k]["gmsd"] < 0.5 for k in ("tpsv", "magnify", "file_bicubic", "bicubic"))
     assert "A .tpsv magnified 4x" in r.stdout
     (edge,) = report["edges"]["variants"]
     assert edge["seed"] == 0 and all(edge[k]["psnr"] > 15 for k in ("tpsv", "bicubic", "lanczos"))

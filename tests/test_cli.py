@@ -89,6 +89,17 @@ def test_magnify_raster_and_tpsv(tmp_path, tpsv_file, small_png, small_rgb):
     assert run("magnify", small_png, "-o", plain, "--factor", 3, "--refine-iterations", -1).exit_code == 2
 
 
+def test_magnify_tpsv_refines_the_render_and_zero_steps_render_it(tmp_path, tpsv_file):
+    rendered, plain, sharp = tmp_path / "r.png", tmp_path / "plain.png", tmp_path / "sharp.png"
+    assert run("render", tpsv_file, "-o", rendered, "--scale", 3).exit_code == 0
+    assert run("magnify", tpsv_file, "-o", plain, "--factor", 3, "--refine-iterations", 0).exit_code == 0
+    assert plain.read_bytes() == rendered.read_bytes()
+    r = run("magnify", tpsv_file, "-o", sharp, "--factor", 3, "--refine-iterations", 10, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["width"] == cv2.imread(str(rendered)).shape[1]
+    assert not np.array_equal(cv2.imread(str(sharp)), cv2.imread(str(rendered)))
+
+
 def test_usage_errors_exit_2(tmp_path, tpsv_file):
     assert run("render", tpsv_file).exit_code == 2  # no -o
     assert run("render", tpsv_file, "-o", tmp_path / "a.png", "--scale", 2, "--size", "4x4").exit_code == 2

@@ -8,7 +8,7 @@ import pytest
 
 from tpsv import metrics
 from tpsv.errors import TpsvError
-from tpsv.rendering.magnify import back_project, dense_model, magnify_raster
+from tpsv.rendering.magnify import back_project, dense_model, magnify_model, magnify_raster
 from tpsv.rendering.raster import render
 
 
@@ -66,3 +66,51 @@ def test_raster_magnify_beyond_one_render_is_refused_before_the_fit(monkeypatch)
     with pytest.raises(TpsvError, match="beyond tpsv's limit"):
         mg.magnify_raster(rgb, (8193, 4097))
     assert not called
+
+
+@pytest.fixture(scope="module")
+def small_model(small_rgb, small_labels):
+    from tpsv.encode.rate import encode_quality
+
+    return encode_quality(small_rgb, small_labels).model
+
+
+def test_magnify_model_keeps_the_files_own_render_as_its_area_average(small_model):
+    m = small_model
+    size = (3 * m.width, 3 * m.height)
+    plain = render(m, width=size[0], height=size[1])
+    small = render(m)
+    sharp = magnify_model(m, size, refine_iterations=20)
+    assert sharp.shape == plain.shape and sharp.dtype == np.float32
+    assert not np.array_equal(sharp, plain)
+    area = cv2.resize(sharp, (m.width, m.height), interpolation=cv2.INTER_AREA)
+    assert np.abs(area - small).max() < 0.02
+    # sharper: a larger mean gradient than the smooth render's
+    grad = lambda a: np.abs(np.diff(a, axis=1)).mean()  # noqa: E731
+    assert grad(sharp) > grad(plain)
+
+
+def test_magnify_model_without_steps_or_growth_is_the_render(small_model):
+    m = small_model
+    size = (2 * m.width, 2 * m.height)
+    assert np.array_equal(magnify_model(m, size, refine_iterations=0), render(m, width=size[0], height=size[1]))
+    half = (m.width // 2, m.height // 2)
+    assert np.array_equal(magnify_model(m, half), render(m, width=half[0], height=half[1]))
+
+
+def test_magnify_model_refines_colours_only_and_keeps_opacity(small_model):
+    from dataclasses import replace
+
+    m = replace(small_model, regions=[replace(r, transparent=(i == 0)) for i, r in enumerate(small_model.regions)])
+    size = (2 * m.width, 2 * m.height)
+    out = magnify_model(m, size, refine_iterations=5, alpha=True)
+    assert out.shape == (size[1], size[0], 4)
+    np.testing.assert_array_equal(out[..., 3], render(m, width=size[0], height=size[1], alpha=True)[..., 3])
+
+
+def test_refined_magnification_beyond_one_picture_is_refused(small_model, monkeypatch):
+    from tpsv.rendering import magnify as mg
+
+    monkeypatch.setattr(mg, "MAX_ARRAY_PIXELS", 100)
+    with pytest.raises(TpsvError, match="beyond tpsv's limit"):
+        mg.magnify_model(small_model, (4 * small_model.width, 4 * small_model.height))

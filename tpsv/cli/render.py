@@ -23,7 +23,7 @@ from ..encode.alpha import has_transparency
 from ..errors import TpsvError
 from ..image import OutputFormat, encode_image, read_image, read_labels
 from ..png import png_chunks
-from ..rendering.magnify import magnify_raster, refine_steps
+from ..rendering.magnify import magnify_model, magnify_raster, refine_steps
 from ..rendering.raster import (MAX_ARRAY_PIXELS, TILE_PIXELS, output_size, render as render_raster, render_bands,
                                 render_png)
 
@@ -107,6 +107,22 @@ def _render_image(out, model, output, size, scale, fmt, device, antialias: bool 
     return {"width": W, "height": H, "seconds": seconds, "device": device}
 
 
+def _magnify_file(ctx, out, model, output, factor, refine_iterations, fmt, device) -> dict:
+    """``model`` magnified by ``factor`` and refined (:func:`magnify_model`), staged as ``output``; the
+    summary. Without refinement steps it is rendered as ``tpsv render`` renders it (bands at any size)."""
+    W, H = output_size(model, scale=factor)
+    steps = refine_steps((model.width, model.height), (W, H), refine_iterations)
+    if not steps:
+        return _render_image(out, model, output, None, factor, fmt, device)
+    t0 = time.perf_counter()
+    fmt.check_size(W, H)
+    with progress_bar(ctx, steps, "magnify") as bar:
+        big = magnify_model(model, (W, H), device=device, refine_iterations=steps,
+                            alpha=has_transparency(model), progress=advance(bar))
+    out.write(output, encode_image(big, fmt))
+    return {"width": W, "height": H, "seconds": time.perf_counter() - t0, "device": device}
+
+
 def _report(ctx, output, info: dict, as_json: bool) -> None:
     if as_json:
         emit_json(info)
@@ -146,8 +162,9 @@ def render(ctx, path, output, scale, size, antialias, format_name, quality, dept
 @click.option("--fit-iterations", type=click.IntRange(0, 50), default=6, show_default=True,
               help="For raster input: back-projection steps fitting the colours to the input.")
 @click.option("--refine-iterations", type=click.IntRange(0, 200), default=40, show_default=True,
-              help="For raster input: steps sharpening the edges of the written picture while keeping its "
-                   "area average equal to the input (least total variation; 0: the model's render as it is).")
+              help="Steps sharpening the edges of the written picture while keeping its area average equal "
+                   "to the input (a raster), or to the file's own render at its size (a .tpsv); least total "
+                   "variation; 0: the render as it is.")
 @click.option("--save-model", type=click.Path(dir_okay=False), default=None,
               help="For raster input: also write the fitted dense model as .tpsv (its render is the picture "
                    "before the refinement).")
@@ -159,10 +176,12 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
             depth, device, as_json):
     """Magnify PATH by --factor.
 
-    PATH is a .tpsv (rendered at the scale), or a raster photo: then every pixel
-    becomes a colour feature, the colours are fitted so that the magnified
-    render, area-averaged back, reproduces the photo, and the render's edges
-    are sharpened under the same constraint (tpsv.rendering.magnify, .refine).
+    PATH is a .tpsv: rendered at the scale, then its edges sharpened while its
+    area average stays the file's own render at its size. Or a raster photo:
+    every pixel becomes a colour feature, the colours are fitted so that the
+    magnified render, area-averaged back, reproduces the photo, and the
+    render's edges are sharpened under the same constraint
+    (tpsv.rendering.magnify, .refine). `tpsv render` draws a .tpsv as it is.
     """
     check_json_target(as_json, output)
     if is_tpsv(path):
@@ -171,7 +190,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
         with claim_outputs([path], ("-o", output)) as out:
             fmt = image_format(output, format_name, quality, depth)
             device = device_for(ctx, device)
-            info = _render_image(out, codec.load(path), output, None, factor, fmt, device)
+            info = _magnify_file(ctx, out, codec.load(path), output, factor, refine_iterations, fmt, device)
         _report(ctx, output, info, as_json)
         return
     t0 = time.perf_counter()

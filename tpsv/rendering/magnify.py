@@ -13,6 +13,14 @@ by :func:`tpsv.rendering.refine.refine_magnified`, which sharpens its edges
 while keeping the same area average: the TPS is a smooth interpolant, and its
 edges widen with the factor. On the bundled samples the result beats bicubic
 and Lanczos upscaling in PSNR and GMSD (``tpsv bench``).
+
+A ``.tpsv`` file is magnified the same way without the fit
+(:func:`magnify_model`): its render at the size, refined under the area
+constraint of its own render at the model's size. Its detail layer is
+interpolated smoothly in ``(S, T)`` and its edges inside regions widen with
+the scale as a raster's do; the refinement sharpens them (on the samples'
+files magnified 4x, PSNR +0.0 to +0.6 dB, GMSD 3 to 9 % lower, PSNR within 4
+px of region borders +0.2 to +1.0 dB against the plain render).
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ from ..color import srgb_to_lab
 from ..geometry.regions import build_regions, to_patch_space
 from ..model import GRADATION, Features, Model, Params
 from ..errors import TpsvError
-from .raster import MAX_ARRAY_PIXELS, render
+from .raster import MAX_ARRAY_PIXELS, output_size, render
 from .refine import refine_magnified
 
 #: Params of a dense model: finest quantisation (bytes do not matter here), K = 32.
@@ -179,3 +187,48 @@ def magnify_raster(
                                progress=None if progress is None else lambda done, _: progress(iterations + done, total))
     return model, big
 
+
+
+def magnify_model(model: Model, size: tuple[int, int], device: str = "cpu", refine_iterations: int = 40,
+                  antialias: bool = True, alpha: bool = False, progress=None) -> np.ndarray:
+    """A model's picture at ``size`` = (width, height): its render there, refined so that its area
+    average stays the model's own render at its size.
+
+    Parameters
+    ----------
+    model : Model
+    size : (width, height)
+    device : str
+        Warp device of the renders.
+    refine_iterations : int
+        Steps of :func:`tpsv.rendering.refine.refine_magnified` (0: the
+        render as it is). Only a picture larger than the model is refined
+        (:func:`refine_steps`).
+    antialias, alpha : bool
+        As :func:`tpsv.rendering.raster.render`; the opacity of an RGBA
+        picture is the render's, only its colours are refined.
+    progress : callable(done, total), optional
+        Called after each refinement step.
+
+    Returns
+    -------
+    ndarray (size[1], size[0], 3 or 4) float32 in [0, 1]
+
+    Raises
+    ------
+    TpsvError
+        A refined ``size`` beyond what one in-memory picture holds
+        (:data:`tpsv.rendering.raster.MAX_ARRAY_PIXELS`; the refinement
+        compares whole pictures).
+    """
+    W, H = output_size(model, width=size[0], height=size[1])
+    steps = refine_steps((model.width, model.height), (W, H), refine_iterations)
+    if steps and W * H > MAX_ARRAY_PIXELS:
+        raise TpsvError(f"refining a {W}x{H} px picture is beyond tpsv's limit ({MAX_ARRAY_PIXELS:,} px, held "
+                        f"whole); magnify with --refine-iterations 0, which renders in bands")
+    big = render(model, width=W, height=H, device=device, antialias=antialias, alpha=alpha)
+    if not steps:
+        return big
+    small = render(model, device=device, antialias=antialias)
+    big[..., :3] = refine_magnified(big[..., :3], small, steps, progress=progress)
+    return big
