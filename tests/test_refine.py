@@ -48,19 +48,50 @@ def test_flat_picture_stays_flat_and_zero_steps_only_clip():
     assert np.array_equal(rf.refine_magnified(wild, small, 0), np.clip(wild, 0, 1))
 
 
-def test_tv_step_keeps_each_channel_mean_and_bands_agree(monkeypatch):
+def test_tv_step_keeps_each_channel_mean_and_lowers_the_variation():
     rng = np.random.default_rng(3)
     x = rng.random((37, 23, 3), dtype=np.float32)
-    whole = np.empty_like(x)
-    rf._tv_step(x, whole, rf.EPS, rf.STEP)
-    assert np.allclose(whole.mean((0, 1)), x.mean((0, 1)), atol=1e-6)
-    # a TV step lowers the total variation
-    tv = lambda a: np.abs(np.diff(a, axis=0)).sum() + np.abs(np.diff(a, axis=1)).sum()
-    assert tv(whole) < tv(x)
-    monkeypatch.setattr(rf, "_BAND_ROWS", 5)
-    banded = np.empty_like(x)
-    rf._tv_step(x, banded, rf.EPS, rf.STEP)
-    assert np.allclose(banded, whole, atol=1e-6)
+    out = rf._tv_step(x, rf.EPS, rf.STEP)
+    assert np.allclose(out.mean((0, 1)), x.mean((0, 1)), atol=1e-6)
+    tv = lambda a: np.abs(np.diff(a, axis=0)).sum() + np.abs(np.diff(a, axis=1)).sum()  # noqa: E731
+    assert tv(out) < tv(x)
+
+
+def test_device_step_is_the_reference_step():
+    wp = pytest.importorskip("warp")
+    from tpsv.gpu import refine as gr
+
+    rng = np.random.default_rng(4)
+    x = rng.random((29, 41, 3), dtype=np.float32)
+    xd = wp.array(x, dtype=wp.vec3f, device="cpu")
+    out = wp.empty_like(xd)
+    wp.launch(gr._tv, dim=(29, 41), inputs=[xd, 0, rf.EPS**2, rf.STEP * rf.EPS, out], device="cpu")
+    np.testing.assert_allclose(out.numpy(), rf._tv_step(x, rf.EPS, rf.STEP), atol=1e-6)
+
+
+@pytest.mark.parametrize("big,small", [(96, 24), (100, 37), (301, 100), (13, 13), (7, 3)])
+def test_area_taps_are_opencvs_inter_area(big, small):
+    from tpsv.gpu.refine import area_taps
+
+    col = np.random.default_rng(big).random((big, 4)).astype(np.float32)
+    start, tap, weight = area_taps(big, small)
+    mine = np.stack([(weight[start[i]:start[i + 1], None] * col[tap[start[i]:start[i + 1]]]).sum(0)
+                     for i in range(small)])
+    np.testing.assert_allclose(mine, cv2.resize(col, (4, small), interpolation=cv2.INTER_AREA), atol=1e-6)
+
+
+def test_refinement_is_the_same_in_bands_of_host_threads():
+    truth = _disc(96)
+    small = _area(truth, (32, 32))
+    start = np.clip(cv2.resize(small, (96, 96), interpolation=cv2.INTER_CUBIC), 0, 1)
+    one = rf.refine_magnified(start, small, 5, threads=1)
+    np.testing.assert_array_equal(rf.refine_magnified(start, small, 5, threads=2), one)
+    # the host's OpenCV resizes give the same picture to rounding
+    x = start.copy()
+    for _ in range(5):
+        x = rf._tv_step(x, rf.EPS, rf.STEP)
+        x += cv2.resize(small - _area(x, small.shape), (96, 96), interpolation=cv2.INTER_CUBIC)
+    np.testing.assert_allclose(one, np.clip(x, 0, 1), atol=1e-5)
 
 
 def test_input_larger_than_the_picture_is_refused():

@@ -183,7 +183,7 @@ def magnify_raster(
                          progress=None if progress is None else lambda done, _: progress(done, total))
     big = render(model, width=size[0], height=size[1], device=device)
     if steps:
-        big = refine_magnified(big, rgb, steps,
+        big = refine_magnified(big, rgb, steps, device=device,
                                progress=None if progress is None else lambda done, _: progress(iterations + done, total))
     return model, big
 
@@ -230,5 +230,5 @@ def magnify_model(model: Model, size: tuple[int, int], device: str = "cpu", refi
     if not steps:
         return big
     small = render(model, device=device, antialias=antialias)
-    big[..., :3] = refine_magnified(big[..., :3], small, steps, progress=progress)
+    big[..., :3] = refine_magnified(big[..., :3], small, steps, progress=progress, device=device)
     return big

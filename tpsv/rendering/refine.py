@@ -14,13 +14,15 @@ no colour fringe appears. The iteration converges to nearly the same picture
 from any smooth start (bicubic or the TPS render, within 0.02 dB on the
 bundled samples).
 
-The TV step runs over bands of rows, so beside the picture itself only a band
-of temporaries and one full-size residual are held.
+The steps run on a Warp device (:mod:`tpsv.gpu.refine`: a thread a pixel,
+the area average as OpenCV's ``INTER_AREA`` takes it, the residual upsampled
+as its ``INTER_CUBIC`` does); :func:`_tv_step` is the TV step in numpy, the
+reference the device's is tested against. Beside the picture, the device
+holds a second picture and the small one's residual.
 """
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 #: Smoothing of the TV norm, sqrt(|grad|^2 + EPS^2), in colour units [0, 1]:
@@ -31,41 +33,30 @@ EPS = 0.05
 #: Step of the TV descent as a fraction of EPS; the explicit step is stable
 #: below 0.25.
 STEP = 0.2
-#: Rows of one band of the TV step.
-_BAND_ROWS = 256
 
 
-def _tv_step(x: np.ndarray, out: np.ndarray, eps: float, step: float) -> None:
-    """``out = x + step * eps * div(grad x / |grad x|_eps)``, band by band.
+def _tv_step(x: np.ndarray, eps: float, step: float) -> np.ndarray:
+    """``x + step * eps * div(grad x / |grad x|_eps)`` (the reference of the device's step).
 
     Forward differences for the gradient and backward ones for the divergence,
     zero flux through the picture's border (Neumann), so the step keeps each
     channel's mean.
     """
-    h = x.shape[0]
-    for r0 in range(0, h, _BAND_ROWS):
-        r1 = min(r0 + _BAND_ROWS, h)
-        # the divergence at row r needs the flux of row r - 1, which needs row r + 1's values
-        a, b = max(r0 - 1, 0), min(r1 + 1, h)
-        band = x[a:b]
-        gx = np.zeros_like(band)
-        gy = np.zeros_like(band)
-        np.subtract(band[:, 1:], band[:, :-1], out=gx[:, :-1])
-        np.subtract(band[1:], band[:-1], out=gy[:-1])
-        norm = np.sqrt((gx * gx + gy * gy).sum(2, keepdims=True) + eps * eps)
-        gx /= norm
-        gy /= norm
-        div = gx.copy()
-        div[:, 1:] -= gx[:, :-1]
-        div[1:] += gy[1:] - gy[:-1]
-        if a == 0:
-            div[0] += gy[0]
-        rows = slice(r0 - a, r1 - a)
-        out[r0:r1] = x[r0:r1] + (step * eps) * div[rows]
+    gx = np.zeros_like(x)
+    gy = np.zeros_like(x)
+    np.subtract(x[:, 1:], x[:, :-1], out=gx[:, :-1])
+    np.subtract(x[1:], x[:-1], out=gy[:-1])
+    norm = np.sqrt((gx * gx + gy * gy).sum(2, keepdims=True) + eps * eps)
+    gx /= norm
+    gy /= norm
+    div = gx + gy
+    div[:, 1:] -= gx[:, :-1]
+    div[1:] -= gy[:-1]
+    return x + (step * eps) * div
 
 
 def refine_magnified(big: np.ndarray, small: np.ndarray, iterations: int = 40, eps: float = EPS,
-                     step: float = STEP, progress=None) -> np.ndarray:
+                     step: float = STEP, progress=None, device: str = "cpu", threads: int | None = None) -> np.ndarray:
     """Sharpen a magnified picture while keeping its area average equal to ``small``.
 
     Parameters
@@ -82,6 +73,10 @@ def refine_magnified(big: np.ndarray, small: np.ndarray, iterations: int = 40, e
         See :data:`EPS` and :data:`STEP`.
     progress : callable(done, total), optional
         Called after each step.
+    device : str
+        Warp device of the steps.
+    threads : int, optional
+        Host threads on the CPU device.
 
     Returns
     -------
@@ -91,14 +86,9 @@ def refine_magnified(big: np.ndarray, small: np.ndarray, iterations: int = 40, e
     sh, sw = small.shape[:2]
     if sh > h or sw > w:
         raise ValueError(f"refine_magnified: the input {sw}x{sh} is larger than the picture {w}x{h}")
-    x = np.array(big, np.float32)
-    y = np.asarray(small, np.float32)
-    nxt = np.empty_like(x)
-    for i in range(iterations):
-        _tv_step(x, nxt, eps, step)
-        x, nxt = nxt, x
-        residual = y - cv2.resize(x, (sw, sh), interpolation=cv2.INTER_AREA)
-        x += cv2.resize(residual, (w, h), interpolation=cv2.INTER_CUBIC)
-        if progress is not None:
-            progress(i + 1, iterations)
-    return np.clip(x, 0.0, 1.0, out=x)
+    if iterations <= 0:
+        return np.clip(np.asarray(big, np.float32), 0.0, 1.0)
+    from ..gpu import resolve_device
+    from ..gpu.refine import refine_device
+
+    return refine_device(big, small, int(iterations), eps, step, resolve_device(device), threads, progress)
