@@ -414,3 +414,38 @@ def test_a_prepared_renderer_adds_the_detail_as_render_does(textured):
     r = Renderer(model)
     for scale in (1, 2.5):
         assert np.array_equal(r.render(scale=scale), render(model, scale=scale))
+
+
+def test_a_sample_on_a_texel_centre_is_that_texel_and_off_it_the_cubic():
+    """A pixel of a model at rest at its own size lands on its texel (to float32 rounding) and reads it
+    alone; a sample off the centres reads the Keys cubic of the sixteen around it."""
+    wp = pytest.importorskip("warp")
+    from tpsv.gpu import detail as gd
+
+    @wp.kernel
+    def sample(tex: wp.array2d(dtype=wp.vec3f), pts: wp.array(dtype=wp.vec2f), out: wp.array(dtype=wp.vec3f)):
+        i = wp.tid()
+        out[i] = gd._sample(tex, pts[i][0], pts[i][1])
+
+    rng = np.random.default_rng(5)
+    tex = rng.normal(size=(6, 7, 3)).astype(np.float32)
+    pts = np.array([[3.5, 2.5], [3.5 + 3e-5, 2.5 - 3e-5], [0.5, 0.5], [6.5, 5.5], [3.9, 2.2]], np.float32)
+    out = wp.empty(len(pts), dtype=wp.vec3f, device="cpu")
+    wp.launch(sample, dim=len(pts), inputs=[wp.array(tex, dtype=wp.vec3f, device="cpu"),
+                                            wp.array(pts, dtype=wp.vec2f, device="cpu"), out], device="cpu")
+    got = out.numpy()
+    for k, (y, x) in enumerate([(2, 3), (2, 3), (0, 0), (5, 6)]):
+        assert np.array_equal(got[k], tex[y, x])
+
+    def keys(t):
+        a = -0.75
+        return np.array([a * t**3 - 2 * a * t**2 + a * t, (a + 2) * t**3 - (a + 3) * t**2 + 1,
+                         -(a + 2) * t**3 + (2 * a + 3) * t**2 - a * t, -a * t**3 + a * t**2])
+
+    fx, fy = 3.9 - 0.5, 2.2 - 0.5
+    ix, iy = int(np.floor(fx)), int(np.floor(fy))
+    wx, wy = keys(fx - ix), keys(fy - iy)
+    rows = np.clip(np.arange(iy - 1, iy + 3), 0, 5)
+    cols = np.clip(np.arange(ix - 1, ix + 3), 0, 6)
+    expect = np.einsum("i,j,ijc->c", wy, wx, tex[rows][:, cols])
+    np.testing.assert_allclose(got[4], expect, atol=1e-5)
