@@ -362,6 +362,7 @@ def inverse_map(
     patch_set: PatchSet | None = None,
     out_size: tuple[int, int] | None = None,
     row0: int = 0,
+    threads: int | None = None,
 ):
     """Normalised ``(S, T)`` of every output pixel, as a device array.
 
@@ -385,11 +386,15 @@ def inverse_map(
         (default: ``index``'s own shape).
     row0 : int
         Output row of ``index``'s first row (a band's offset).
+    threads : int, optional
+        Host threads on the CPU device (None: every core).
 
     Returns
     -------
     wp.array2d(dtype=wp.vec2), shape of ``index``, on ``device``.
     """
+    from .rasterise import _BAND_MIN, _launch_banded
+
     ps = patch_set if patch_set is not None else PatchSet.build(patches, device)
     device = ps.device
     if not isinstance(index, wp.array):
@@ -399,8 +404,13 @@ def inverse_map(
     W_out, H_out = out_size if out_size is not None else (W, H)
     sx = float(src_size[0]) / float(W_out)
     sy = float(src_size[1]) / float(H_out)
-    wp.launch(_map_kernel, dim=(H, W), inputs=[ps.arrays, _search(t_loc, n_itr, newton), index, sx, sy, int(row0), out],
-              device=device)
+    opt = _search(t_loc, n_itr, newton)
+
+    def launch(a, b):  # bands of rows run the same kernel as the whole frame: the same pixels
+        wp.launch(_map_kernel, dim=(b - a, W), inputs=[ps.arrays, opt, index[a:b], sx, sy, int(row0) + a, out[a:b]],
+                  device=device)
+
+    _launch_banded(_map_kernel, H, H * W >= _BAND_MIN, device, threads, launch)
     return out
 
 
