@@ -420,12 +420,12 @@ def test_a_sample_on_a_texel_centre_is_that_texel_and_off_it_the_cubic():
     """A pixel of a model at rest at its own size lands on its texel (to float32 rounding) and reads it
     alone; a sample off the centres reads the Keys cubic of the sixteen around it."""
     wp = pytest.importorskip("warp")
-    from tpsv.gpu import detail as gd
+    from tpsv.gpu import cubic
 
     @wp.kernel
     def sample(tex: wp.array2d(dtype=wp.vec3f), pts: wp.array(dtype=wp.vec2f), out: wp.array(dtype=wp.vec3f)):
         i = wp.tid()
-        out[i] = gd._sample(tex, pts[i][0], pts[i][1])
+        out[i] = cubic.sample(tex, pts[i][0], pts[i][1])
 
     rng = np.random.default_rng(5)
     tex = rng.normal(size=(6, 7, 3)).astype(np.float32)

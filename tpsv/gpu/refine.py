@@ -11,7 +11,8 @@ Three kernels per step, each a thread a pixel:
    pixels it covers, the partly covered ones weighted by their share: a table
    of taps per axis made on the host);
 3. :func:`_cubic`: the residual upsampled as OpenCV's ``INTER_CUBIC`` does
-   (Keys, ``a = -0.75``, pixel centres aligned, border replicated) and added.
+   (:func:`tpsv.gpu.cubic.sample`: Keys, ``a = -0.75``, pixel centres
+   aligned, border replicated) and added.
 
 The sums run in float32 in another order than OpenCV's, so the picture
 differs from the host's by rounding (within 1e-5 on the tests' pictures).
@@ -22,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .cubic import sample
 from .rasterise import _BAND_MIN, _launch_banded
 
 wp.set_module_options({"enable_backward": False})
@@ -73,38 +75,11 @@ def _area(x: wp.array2d(dtype=wp.vec3f), small: wp.array2d(dtype=wp.vec3f), rsta
     res[i, j] = small[i, j] - acc
 
 
-@wp.func
-def _keys(t: float):
-    """OpenCV's cubic weights (``a = -0.75``) of the taps at -1, 0, 1, 2 around ``t`` in [0, 1)."""
-    a = -0.75
-    t1 = t + 1.0
-    w0 = ((a * t1 - 5.0 * a) * t1 + 8.0 * a) * t1 - 4.0 * a
-    w1 = ((a + 2.0) * t - (a + 3.0)) * t * t + 1.0
-    u = 1.0 - t
-    w2 = ((a + 2.0) * u - (a + 3.0)) * u * u + 1.0
-    return wp.vec4f(w0, w1, w2, 1.0 - w0 - w1 - w2)
-
-
 @wp.kernel
 def _cubic(res: wp.array2d(dtype=wp.vec3f), sy: float, sx: float, y0: int, x: wp.array2d(dtype=wp.vec3f)):
     yy, i = wp.tid()
     y = yy + y0
-    h = res.shape[0]
-    w = res.shape[1]
-    fy = (float(y) + 0.5) * sy - 0.5
-    fx = (float(i) + 0.5) * sx - 0.5
-    iy = int(wp.floor(fy))
-    ix = int(wp.floor(fx))
-    wy = _keys(fy - float(iy))
-    wx = _keys(fx - float(ix))
-    acc = wp.vec3f(0.0, 0.0, 0.0)
-    for p in range(4):
-        r = wp.clamp(iy - 1 + p, 0, h - 1)
-        row = wp.vec3f(0.0, 0.0, 0.0)
-        for q in range(4):
-            row = row + wx[q] * res[r, wp.clamp(ix - 1 + q, 0, w - 1)]
-        acc = acc + wy[p] * row
-    x[y, i] = x[y, i] + acc
+    x[y, i] = x[y, i] + sample(res, (float(i) + 0.5) * sx, (float(y) + 0.5) * sy)
 
 
 def area_taps(big: int, small: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
