@@ -107,7 +107,8 @@ class DeviceDetail:
     def __init__(self, detail, device: str):
         self.device = device
         raw, self.frame, self.mode = upload(device, (detail.texels, wp.uint16),
-                                            (np.asarray(detail.frame).reshape(-1, 2), wp.vec2f), (detail.mode, wp.int32))
+                                            (np.asarray(detail.frame).reshape(-1, 2), wp.vec2f),
+                                            (detail.mode, wp.int32))
         h, w = raw.shape[:2]
         self.tex = wp.empty((h, w), dtype=wp.vec3f, device=device)
         wp.launch(_residual, dim=(h, w), inputs=[raw, self.tex], device=device)

@@ -25,13 +25,15 @@ import warp as wp
 
 from .cubic import sample
 from .rasterise import _BAND_MIN, _launch_banded
+from .transfer import upload
 
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
 def _flux(x: wp.array2d(dtype=wp.vec3f), y: int, i: int, eps2: float):
-    """The normalised forward gradient at ``(y, i)``: ``(gx, gy) / |(gx, gy)|_eps``, zero past the last column or row."""
+    """The normalised forward gradient at ``(y, i)``: ``(gx, gy) / |(gx, gy)|_eps``, zero past the last
+    column or row."""
     c = x[y, i]
     gx = wp.vec3f(0.0, 0.0, 0.0)
     gy = wp.vec3f(0.0, 0.0, 0.0)
@@ -122,8 +124,9 @@ def refine_device(big: np.ndarray, small: np.ndarray, iterations: int, eps: floa
     y = wp.array(np.ascontiguousarray(small, np.float32).reshape(h, w, 3), dtype=wp.vec3f, device=device)
     nxt = wp.empty_like(x)
     res = wp.empty_like(y)
-    rows = [wp.array(a, device=device) for a in area_taps(H, h)]
-    cols = [wp.array(a, device=device) for a in area_taps(W, w)]
+    (r0, r1, r2), (c0, c1, c2) = area_taps(H, h), area_taps(W, w)
+    rows_cols = upload(device, (r0, wp.int32), (r1, wp.int32), (r2, wp.float32), (c0, wp.int32), (c1, wp.int32),
+                       (c2, wp.float32))
     eps2, k = float(eps) ** 2, float(step) * float(eps)
     large = H * W >= _BAND_MIN
     for it in range(iterations):
@@ -133,7 +136,7 @@ def refine_device(big: np.ndarray, small: np.ndarray, iterations: int, eps: floa
         x, nxt = nxt, x
         cur = x
         _launch_banded(_area, h, h * w >= _BAND_MIN, device, threads, lambda a, b: wp.launch(
-            _area, dim=(b - a, w), inputs=[cur, y, *rows, *cols, a, res], device=device))
+            _area, dim=(b - a, w), inputs=[cur, y, *rows_cols, a, res], device=device))
         _launch_banded(_cubic, H, large, device, threads, lambda a, b: wp.launch(
             _cubic, dim=(b - a, W), inputs=[res, h / H, w / W, a, cur], device=device))
         if progress is not None:

@@ -62,7 +62,8 @@ def upload(device: str, *items, pack_bytes: int = PACK_BYTES) -> list:
     out = [None] * len(prepared)
     for i, (host, shape, dtype) in enumerate(prepared):
         if i not in small:
-            out[i] = wp.array(host, dtype=dtype, device=device) if host.size else wp.empty(shape, dtype=dtype, device=device)
+            out[i] = (wp.array(host, dtype=dtype, device=device) if host.size
+                      else wp.empty(shape, dtype=dtype, device=device))
     if not small:
         return out
     offsets, size = [], 0

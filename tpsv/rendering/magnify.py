@@ -188,7 +188,6 @@ def magnify_raster(
     return model, big
 
 
-
 def magnify_model(model: Model, size: tuple[int, int], device: str = "cpu", refine_iterations: int = 40,
                   antialias: bool = True, alpha: bool = False, progress=None) -> np.ndarray:
     """A model's picture at ``size`` = (width, height): its render there, refined so that its area
