@@ -25,6 +25,7 @@ from a few host threads (:func:`tpsv.gpu.device.split_launch`).
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
@@ -35,6 +36,7 @@ from . import warp as _warp
 from .color import lab_to_srgb
 from .device import BlendArrays, DeviceKernels, split_launch, upload
 from .solve import solve
+from .transfer import upload as _send
 
 # fast_math only changes CUDA float32 code (approximate log/division in the rasteriser:
 # about 25 % faster on an H100, renders agree with the CPU device within 2e-4).
@@ -505,34 +507,30 @@ def mix_border(dk: DeviceKernels, out: wp.array, mix, st, st2, threads: int | No
     wp.array2d(dtype=vec3f)
         ``out``.
     """
-    n = int(np.size(mix.pixels))
-    if n == 0:
+    if int(np.size(mix.pixels)) == 0:
         return out
-    dev = dk.device
-
-    def up(v, dtype, shape=(-1,)):
-        return wp.array(np.ascontiguousarray(v).reshape(shape), dtype=dtype, device=dev)
-
-    return mix_border_device(dk, out, up(mix.pixels.astype(np.int32), wp.int32),
-                             up(mix.other.astype(np.int32), wp.int32), up(np.asarray(st, np.float32), wp.vec2f, (-1, 2)),
-                             up(mix.alpha.astype(np.float32), wp.float32), up(mix.other2.astype(np.int32), wp.int32),
-                             up(np.asarray(st2, np.float32), wp.vec2f, (-1, 2)), up(mix.alpha2.astype(np.float32),
-                                                                                     wp.float32), threads, clamp)
+    pixels, other, st_d, alpha, other2, st2_d, alpha2 = _send(
+        dk.device, (mix.pixels, wp.int32), (mix.other, wp.int32), (np.reshape(st, (-1, 2)), wp.vec2f),
+        (mix.alpha, wp.float32), (mix.other2, wp.int32), (np.reshape(st2, (-1, 2)), wp.vec2f), (mix.alpha2, wp.float32))
+    on_device = SimpleNamespace(pixels=pixels, other=other, alpha=alpha, other2=other2, alpha2=alpha2)
+    return mix_border_device(dk, out, on_device, st_d, st2_d, threads, clamp)
 
 
-def mix_border_device(dk: DeviceKernels, out: wp.array, pix_d, oth_d, st_d, al_d, oth2_d, st2_d, al2_d,
-                      threads: int | None = None, clamp: bool = True) -> wp.array:
-    """:func:`mix_border` of border pixels already on the device (``int32``, ``int32``, ``vec2f``, ``float32``,
-    and the same for the second border)."""
-    n = int(pix_d.shape[0])
+def mix_border_device(dk: DeviceKernels, out: wp.array, mix, st, st2, threads: int | None = None,
+                      clamp: bool = True) -> wp.array:
+    """:func:`mix_border` of border pixels already on the device: ``mix`` a
+    :class:`tpsv.gpu.coverage.DeviceBorderMix` (its ``pixels``, ``other``, ``alpha``, ``other2``, ``alpha2``),
+    ``st`` and ``st2`` ``vec2f`` arrays."""
+    n = int(mix.pixels.shape[0])
     if n == 0:
         return out
     dev = dk.device
     W = out.shape[1]
 
     def launch(a, b):
-        wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, pix_d[a:b], oth_d[a:b], st_d[a:b], al_d[a:b], oth2_d[a:b],
-                                                  st2_d[a:b], al2_d[a:b], int(W), int(clamp), out], device=dev)
+        wp.launch(_mix_border, dim=b - a, inputs=[dk.blend, mix.pixels[a:b], mix.other[a:b], st[a:b], mix.alpha[a:b],
+                                                  mix.other2[a:b], st2[a:b], mix.alpha2[a:b], int(W), int(clamp), out],
+                  device=dev)
 
     _launch_banded(_mix_border, n, n >= _BAND_MIN, dev, threads, launch)
     return out

@@ -54,10 +54,10 @@ from ..gpu import resolve_device
 from ..gpu import tps as gtps
 from ..gpu import warp
 from ..gpu.coverage import DeviceBorders
-from ..gpu.patchmap import PatchSet, inverse_points_device
+from ..gpu.patchmap import PatchSet
 from ..gpu.rasterise import changed_pixels, rasterise_dirty
 from .pixelmap import draw_order, pixel_map
-from .raster import ONE_PIECE_PIXELS, Stopwatch, output_size
+from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st_device, output_size
 
 
 @dataclass
@@ -339,14 +339,11 @@ class LiveImage:
             # found, and their (S, T) across, on the device: nothing crosses to the host
             mix = DeviceBorders(self._drawn, self.W, self.H, self.device).mix_device(self._pm.index_d,
                                                                              threads=self.threads)
-            st = (inverse_points_device(self._patches, mix.other, mix.xy),
-                  inverse_points_device(self._patches, mix.other2, mix.xy)) if mix.n else None
-            self._mix = (mix, st)
+            self._mix = (mix, border_st_device(self._patches, mix) if mix.n else None)
         mix, st = self._mix
         self._shown = warp().clone(self._out)
         if mix.n:
-            gtps.mix_border_device(dk, self._shown, mix.pixels, mix.other, st[0], mix.alpha, mix.other2, st[1],
-                                   mix.alpha2, threads=self.threads, clamp=self.clamp)
+            gtps.mix_border_device(dk, self._shown, mix, *st, threads=self.threads, clamp=self.clamp)
 
     def _add_detail(self, model) -> None:
         """Step 6: the detail layer added to the shown image (as ``render`` does)."""

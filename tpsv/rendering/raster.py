@@ -361,6 +361,13 @@ def border_st(model, borders, device, patch_set=None) -> tuple[np.ndarray, np.nd
                  for other in (borders.other, borders.other2))
 
 
+def border_st_device(patch_set, mix) -> tuple:
+    """:func:`border_st` of a :class:`tpsv.gpu.coverage.DeviceBorderMix`, left on the device (``vec2f`` arrays)."""
+    from ..gpu.patchmap import inverse_points_device
+
+    return tuple(inverse_points_device(patch_set, other, mix.xy) for other in (mix.other, mix.other2))
+
+
 def device_detail(model, device: str):
     """The model's detail layer on ``device`` (:class:`tpsv.gpu.detail.DeviceDetail`), or None."""
     if model.detail is None:
@@ -391,13 +398,10 @@ def _mix_borders(model, dk, out, borders, threads, clamp, patch_set=None) -> Non
     from ..gpu import tps as gtps
 
     if not isinstance(borders, BorderMix):
-        from ..gpu.patchmap import PatchSet, inverse_points_device
+        from ..gpu.patchmap import PatchSet
 
         ps = patch_set if patch_set is not None else PatchSet.build([r.patch for r in model.regions], dk.device)
-        st = inverse_points_device(ps, borders.other, borders.xy)
-        st2 = inverse_points_device(ps, borders.other2, borders.xy)
-        gtps.mix_border_device(dk, out, borders.pixels, borders.other, st, borders.alpha, borders.other2, st2,
-                               borders.alpha2, threads=threads, clamp=clamp)
+        gtps.mix_border_device(dk, out, borders, *border_st_device(ps, borders), threads=threads, clamp=clamp)
         return
 
     st, st2 = border_st(model, borders, dk.device, patch_set)
