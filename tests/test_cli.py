@@ -161,11 +161,12 @@ def test_truncated_tpsv(tmp_path, tpsv_file, cut):
     data = tpsv_file.read_bytes()
     bad = tmp_path / "bad.tpsv"
     bad.write_bytes(data[:cut] if cut >= 0 else data[:cut])
-    for args in (("info", bad), ("render", bad, "-o", tmp_path / "r.png")):
+    for args in (("info", bad), ("render", bad, "-o", tmp_path / "r.png"),
+                 ("magnify", bad, "-o", tmp_path / "m.png", "--factor", 2)):
         r = run(*args)
         assert_one_line_error(r)
         assert "bad.tpsv" in r.stderr  # the message names the file
-    assert not (tmp_path / "r.png").exists()
+    assert not (tmp_path / "r.png").exists() and not (tmp_path / "m.png").exists()
 
 
 def test_subprocess_end_to_end(tmp_path, tpsv_file):
