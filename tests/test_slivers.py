@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from tpsv.geometry.regions import build_regions
 from tpsv.gpu.coverage import DeviceBorders
 from tpsv.model import Features, Model, Params
-from tpsv.rendering.borders import Borders, shares
+from tpsv.rendering.borders import Borders, depth, shares
 from tpsv.rendering.pixelmap import region_index
 
 
@@ -89,3 +91,50 @@ def test_shares_of_a_strip_and_of_a_nested_border():
     np.testing.assert_allclose([own[0], across[0], across2[0]], [0.5, 0.3, 0.2])
     a, a2 = shares(c1, c2, np.array([1.0]))
     np.testing.assert_allclose([(a * a2)[0], ((1 - a) * a2)[0], (1 - a2)[0]], [0.7, 0.1, 0.2])
+
+
+@pytest.mark.parametrize("scale", [2, 3])
+def test_a_junction_mixes_its_two_neighbours_without_a_seam(scale):
+    """Three regions meeting in a T (region 2 below, 0 and 1 above, split at x = 32) with soft edges.
+    Below the junction the nearest border switches from 2|0 to 2|1 along x = 32; above it, from 0|2
+    to 0|1 along a diagonal. The two regions share alike about the split, and no pixel's shares step
+    from one neighbour to the next by more than twice the blurred edge's slope (a quadrant's blurred
+    share steps by up to 1.4 slopes diagonally; the sliver rule, which the region across the second
+    border took there before, swapped the shares: steps of 0.38, 6 to 9 slopes)."""
+    labels = np.full((48, 64), 2, np.int32)
+    labels[:24, :32] = 0
+    labels[:24, 32:] = 1
+    m = label_model(labels, sigma=3.0)
+    # the exact T (the traced outlines cut the junction's corners by half a pixel, unevenly)
+    rects = ([(0, 0), (32, 0), (32, 24), (0, 24)], [(32, 0), (64, 0), (64, 24), (32, 24)],
+             [(0, 24), (64, 24), (64, 48), (0, 48)])
+    m.regions = [replace(r, outline=[np.array(q, np.float64)]) for r, q in zip(m.regions, rects)]
+    W, H = 64 * scale, 48 * scale
+    idx = region_index(m, W, H)
+    mid, y = 32 * scale, 24 * scale
+    slope = 1.0 / (3.0 * scale * np.sqrt(2 * np.pi))
+    for mix in (DeviceBorders(m, W, H).mix(idx), Borders(m, W, H).mix(idx)):
+        s = region_shares(mix, idx, 3)
+        below = s[y:y + 9 * scale]
+        np.testing.assert_allclose(below[:, :mid, 0], below[:, ::-1][:, :mid, 1], atol=1e-5)
+        assert np.abs(np.diff(s[y - 9 * scale:y + 9 * scale], axis=1)).max() < 2 * slope
+        assert np.abs(np.diff(s[y - 9 * scale:y], axis=0)).max() < 2 * slope
+
+
+def test_siblings_share_alike_and_a_border_beyond_keeps_the_sliver_rule():
+    c1, c2, dot = np.array([0.8]), np.array([0.8]), np.array([1.0])
+    a, a2 = shares(c1, c2, dot, nested=np.array([0.0]))
+    first, second = ((1 - a) * a2)[0], (1 - a2)[0]
+    assert first == pytest.approx(second) and first == pytest.approx(0.1)
+    a, a2 = shares(np.array([0.7]), np.array([0.8]), dot, nested=np.array([0.0]))
+    np.testing.assert_allclose([((1 - a) * a2)[0], (1 - a2)[0]], [0.2, 0.1])
+    # beyond the region across (a sliver): the region across the first border is a strip
+    a, a2 = shares(np.array([0.7]), np.array([0.8]), dot, nested=np.array([1.0]))
+    np.testing.assert_allclose([((1 - a) * a2)[0], (1 - a2)[0]], [0.1, 0.2])
+
+
+def test_depth_of_a_second_border():
+    f1 = np.array([[10.0, 5.0], [10.0, 5.0], [10.0, 5.0]])
+    n1 = np.array([[0.0, 1.0]] * 3)  # across the first border: down
+    f2 = np.array([[10.0, 9.0], [14.0, 5.0], [12.0, 5.5]])  # a sliver 4 px deep, a junction, a notch
+    np.testing.assert_allclose(depth(f1, f2, n1, 2.0), [1.0, 0.0, 0.25])

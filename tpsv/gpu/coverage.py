@@ -63,7 +63,7 @@ import warp as wp
 
 from ..geometry import curves
 from ..rendering.borders import (MAX_REJECTED, MAX_VISIT, SECOND_LEAST, BorderMix, Borders, blur_map, edge_widths,
-                                 region_limits, widest_sigma)
+                                 nest_scale, region_limits, widest_sigma)
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
@@ -602,6 +602,20 @@ def _gather(mask: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), off
                 k = k + 1
 
 
+@wp.func
+def _shares(c1: wp.float64, c2: wp.float64, dot: wp.float64, nu: wp.float64):
+    """``borders.shares``: ``(alpha, alpha2)`` of two borders' coverages, the cosine between them, and how far
+    the second is the far side of the region across the first (``nested``)."""
+    w = wp.float64(0.5) * (wp.float64(1.0) + dot)
+    b1 = wp.float64(1.0) - c1
+    b2 = wp.float64(1.0) - c2
+    half = wp.float64(0.5) * wp.min(b1, b2)
+    s2 = b2 - (wp.float64(1.0) - nu) * w * half
+    s1 = wp.max(wp.float64(0.0), b1 - w * (nu * b2 + (wp.float64(1.0) - nu) * half))
+    a2 = wp.float64(1.0) - s2
+    return wp.float64(1.0) - s1 / wp.max(a2, wp.float64(1e-12)), a2
+
+
 @wp.kernel
 def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp.array(dtype=wp.int32), gw: int,
              gh: int, cell: int, slack: wp.float64, rows: int, limit: wp.array(dtype=wp.float64),
@@ -610,7 +624,7 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
              index: wp.array2d(dtype=wp.int32), iy0: int, y0: int, cand: wp.array(dtype=wp.int32),
              keep: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), alpha: wp.array(dtype=wp.float32),
              other2: wp.array(dtype=wp.int32), alpha2: wp.array(dtype=wp.float32),
-             masks: wp.array2d(dtype=wp.uint64), near: wp.array2d(dtype=wp.uint64), mrow0: int):
+             masks: wp.array2d(dtype=wp.uint64), near: wp.array2d(dtype=wp.uint64), mrow0: int, nest: wp.float64):
     """Each candidate: nearest border piece, region across, coverage, a second border; ``keep`` 1 where it mixes.
 
     ``masks``: the regions near each search cell (:func:`_cell_regions`), ``near`` the same gathered over
@@ -681,11 +695,12 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                         w2 = wp.max(_sigma(keys, sigma, n_regions, mine, r2), _sigma(keys, sigma, n_regions, o, r2))
                     c2 = _coverage(dist2, w2)
                     if c2 < _SECOND:
-                        gamma = wp.max(wp.float64(0.0), wp.float64(1.0) - s
-                                       - wp.float64(0.5) * (wp.float64(1.0) + dot) * (wp.float64(1.0) - c2))
                         o2 = r2
-                        a1 = wp.float64(1.0) - gamma / wp.max(c2, wp.float64(1e-12))
-                        a2 = c2
+                        # (borders.depth)
+                        n1 = wp.max(wp.sqrt(v1x * v1x + v1y * v1y), wp.float64(1e-300))
+                        nu = wp.clamp(((gx - fx) * v1x + (gy - fy) * v1y) / (n1 * nest), wp.float64(0.0),
+                                      wp.float64(1.0))
+                        a1, a2 = _shares(s, c2, dot, nu)
                 alpha[i] = wp.float32(a1)
                 other2[i] = o2
                 alpha2[i] = wp.float32(a2)
@@ -782,6 +797,7 @@ class DeviceBorders:
         model = curves.as_drawn(model, self.width, self.height)
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
+        self.nest = nest_scale(self.kx, self.ky)
         nr = max(len(model.regions), 1)
         keys, sigma = edge_widths(model, self.kx, self.ky)
         bmap = blur_map(model, self.kx, self.ky)
@@ -976,7 +992,8 @@ class DeviceBorders:
             wp.launch(_measure, dim=i1 - i0, inputs=[*g.search(), g.limit, g.limit2, g.keys, g.sigma, g.n_regions, g.bmap,
                                                      wp.float64(g.bcw), wp.float64(g.bch), g.has_map, index_d, iy0, a,
                                                      cand[i0:i1], keep[i0:i1], other[i0:i1], alpha[i0:i1],
-                                                     other2[i0:i1], alpha2[i0:i1], masks, near, mrow0], device=dev)
+                                                     other2[i0:i1], alpha2[i0:i1], masks, near, mrow0,
+                                                     wp.float64(self.nest)], device=dev)
 
         _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
         koffs = wp.empty(nc, dtype=wp.int32, device=dev)

@@ -120,12 +120,16 @@ class BorderMix:
         return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros((0, 2)))
 
 
-def shares(c1: np.ndarray, c2: np.ndarray, dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def shares(c1: np.ndarray, c2: np.ndarray, dot: np.ndarray, nested=None) -> tuple[np.ndarray, np.ndarray]:
     """How a pixel mixes the regions across its two nearest borders: ``(alpha, alpha2)`` of :class:`BorderMix`.
 
     ``c1`` and ``c2`` are the coverages each border alone leaves the pixel
     (:meth:`Borders._coverage`; border 1 the nearer), ``dot`` the cosine of
-    the angle between the directions from the pixel to the two borders. The
+    the angle between the directions from the pixel to the two borders,
+    ``nested`` from 0 to 1 how far border 2 is the far side of the region
+    across border 1 (:func:`depth`; default 1).
+
+    Where border 2 is beyond the region across border 1 (a sliver), the
     region across border 2 takes ``1 - c2`` of the pixel; the one across
     border 1 takes ``1 - c1`` where the borders face each other (``dot =
     -1``: the pixel's region is a strip between them, exact for a blurred
@@ -135,15 +139,48 @@ def shares(c1: np.ndarray, c2: np.ndarray, dot: np.ndarray) -> tuple[np.ndarray,
     neighbours, the same on both sides of its middle, and a pixel beside it
     sees the region beyond it too.
 
+    Where the two borders meet (``nested`` 0: a junction of three regions,
+    the second border running through the first's line), the two regions
+    across are treated alike: each takes its own ``1 - c`` less half the
+    part where the two half-planes overlap (``(1 + dot) / 2`` of the
+    smaller); between the two cases, linearly in ``nested``. Which border
+    is "first" flips along the line where they are equally near; with the
+    sliver's rule everywhere the two regions' shares swapped there from one
+    pixel to the next (a hard seam below a junction).
+
     Returns
     -------
     alpha, alpha2 : ndarray
         Composited in two steps: ``alpha2 * (alpha * own + (1 - alpha) * across)
         + (1 - alpha2) * across2``.
     """
-    beta = 1.0 - c2
-    gamma = np.maximum(0.0, 1.0 - c1 - 0.5 * (1.0 + dot) * beta)
-    return 1.0 - gamma / np.maximum(c2, 1e-12), c2
+    w = 0.5 * (1.0 + dot)
+    nu = 1.0 if nested is None else nested
+    b1, b2 = 1.0 - c1, 1.0 - c2
+    half = 0.5 * np.minimum(b1, b2)
+    s2 = b2 - (1.0 - nu) * w * half
+    s1 = np.maximum(0.0, b1 - w * (nu * b2 + (1.0 - nu) * half))
+    a2 = 1.0 - s2
+    return 1.0 - s1 / np.maximum(a2, 1e-12), a2
+
+
+def nest_scale(kx: float, ky: float) -> float:
+    """The ``scale`` of :func:`depth` at output scales ``kx``, ``ky``: one model pixel (outlines are traced
+    at the model's pixels, and the corners where they meet are good to about that)."""
+    return 0.5 * (kx + ky)
+
+
+def depth(f1: np.ndarray, f2: np.ndarray, n1: np.ndarray, scale: float) -> np.ndarray:
+    """``nested`` of :func:`shares`: how far the second border's foot ``f2`` lies beyond the line of the
+    first border (its foot ``f1``, the unit direction across ``n1``), in units of ``scale`` (about a
+    model pixel in output pixels), clipped to ``[0, 1]``.
+
+    A sliver's far side lies a band's width beyond its near side: 1. The borders
+    meeting at a junction run through the same point: 0 there, whichever
+    border is the nearer (the feet do not depend on which of two pieces
+    meeting at a vertex a search takes, so neither does this).
+    """
+    return np.clip(((f2 - f1) * n1).sum(-1) / scale, 0.0, 1.0)
 
 
 def near_cells(reach: float) -> tuple[int, int]:
@@ -362,6 +399,8 @@ class Borders:
         self.second = bool(second)
         self.kx = self.width / float(model.width)
         self.ky = self.height / float(model.height)
+        #: a model pixel in output pixels: the depth at which a second border counts as a sliver's (:func:`depth`)
+        self.nest = nest_scale(self.kx, self.ky)
         self.n_regions = max(len(model.regions), 1)
         self.blur_keys, self.blur_sigma = edge_widths(model, self.kx, self.ky)
         self.blur_map = blur_map(model, self.kx, self.ky)
@@ -445,15 +484,15 @@ class Borders:
                                                    toward[ok])
         alpha = self._coverage(dmin, self._sigma(mine, other, f))
         mixed = alpha < 1.0 - 1e-4
-        p, alpha, ys, xs, other, mine, toward = (p[mixed], alpha[mixed], ys[mixed], xs[mixed], other[mixed],
-                                                 mine[mixed], toward[mixed])
-        other2, alpha, alpha2 = self._second(ext, top, mine, other, p, toward, alpha, ys, xs, y0)
+        p, f, alpha, ys, xs, other, mine, toward = (p[mixed], f[mixed], alpha[mixed], ys[mixed], xs[mixed],
+                                                    other[mixed], mine[mixed], toward[mixed])
+        other2, alpha, alpha2 = self._second(ext, top, mine, other, p, f, toward, alpha, ys, xs, y0)
         xy = np.column_stack([p[:, 0] / self.kx, p[:, 1] / self.ky])
         return BorderMix(pixels=(ys * W + xs).astype(np.int32), other=other.astype(np.int32),
                          alpha=alpha.astype(np.float32), xy=xy, other2=other2.astype(np.int32),
                          alpha2=alpha2.astype(np.float32))
 
-    def _second(self, ext, top, mine, other, p, toward, c1, ys, xs, y0):
+    def _second(self, ext, top, mine, other, p, f, toward, c1, ys, xs, y0):
         """The region across a second border of each mixed pixel: ``(other2, alpha, alpha2)``.
 
         See :func:`shares`; ``other2`` -1 (and ``alpha`` the coverage ``c1``,
@@ -461,7 +500,8 @@ class Borders:
         pixels with a third region's pixel near (:func:`third_near`), whose
         first border leaves them at least :data:`SECOND_LEAST`, are searched.
         The directions across are to the points where the regions across were
-        read (``toward`` for the first border, from :meth:`_across`).
+        read (``toward`` for the first border, from :meth:`_across`); ``f``
+        are the feet on the first border.
         """
         n = len(p)
         other2 = np.full(n, -1, np.int64)
@@ -476,12 +516,14 @@ class Borders:
         i = look[j]
         v1 = toward[i] - p[i]
         v2 = self._beyond_point(p[i], f2, d2) - p[i]
-        dot = (v1 * v2).sum(1) / np.maximum(np.hypot(*v1.T) * np.hypot(*v2.T), 1e-300)
+        n1 = np.hypot(*v1.T)
+        nested = depth(f[i], f2, v1 / np.maximum(n1, 1e-300)[:, None], self.nest)
+        dot = (v1 * v2).sum(1) / np.maximum(n1 * np.hypot(*v2.T), 1e-300)
         # the second border is the far side of the region across or one of the pixel's own: the wider
         # of the two pairs (no choice by the sign of dot, which rounding decides for a pixel on a border)
         c2 = self._coverage(d2, np.maximum(self._sigma(mine[i], r2, f2), self._sigma(other[i], r2, f2)))
-        a, a2 = shares(c1[i], c2, dot)
-        two = a2 < 1.0 - SECOND_LEAST
+        a, a2 = shares(c1[i], c2, dot, nested)
+        two = c2 < 1.0 - SECOND_LEAST
         i = i[two]
         other2[i], alpha[i], alpha2[i] = r2[two], a[two], a2[two]
         return other2, alpha, alpha2
