@@ -32,7 +32,7 @@ from ..color import srgb_to_lab
 from ..geometry.regions import build_regions, to_patch_space
 from ..model import GRADATION, Features, Model, Params
 from ..errors import TpsvError
-from .raster import MAX_ARRAY_PIXELS, output_size, render
+from .raster import MAX_ARRAY_PIXELS, ONE_PIECE_PIXELS, Renderer, output_size, render
 from .refine import refine_magnified
 
 #: Params of a dense model: finest quantisation (bytes do not matter here), K = 32.
@@ -225,9 +225,15 @@ def magnify_model(model: Model, size: tuple[int, int], device: str = "cpu", refi
     if steps and W * H > MAX_ARRAY_PIXELS:
         raise TpsvError(f"refining a {W}x{H} px picture is beyond tpsv's limit ({MAX_ARRAY_PIXELS:,} px, held "
                         f"whole); magnify with --refine-iterations 0, which renders in bands")
-    big = render(model, width=W, height=H, device=device, antialias=antialias, alpha=alpha)
+    # the kernels grouped, uploaded and solved once for both renders
+    prepared = Renderer(model, device)
+    if W * H <= ONE_PIECE_PIXELS:
+        big = prepared.render(W, H, antialias=antialias, alpha=alpha)
+    else:
+        big = render(model, width=W, height=H, device=device, kernels=prepared.kernels, antialias=antialias,
+                     alpha=alpha)
     if not steps:
         return big
-    small = render(model, device=device, antialias=antialias)
+    small = prepared.render(model.width, model.height, antialias=antialias)
     big[..., :3] = refine_magnified(big[..., :3], small, steps, progress=progress, device=device)
     return big
