@@ -99,10 +99,9 @@ def _fill_rows(
 ):
     """The spans of row ``row0 + tid`` of the coverage, its uncovered pixels counted.
 
-    Spans that do not overlap (the usual case) are left sorted in ``xs``/``rs``
-    and their count in ``spans[row]``, for :func:`_fill_pixels` to write a
-    thread a pixel; a row whose spans overlap is written here, ``spans[row]``
-    set to -1.
+    The spans are left sorted by start in ``xs``/``rs`` and their count in
+    ``spans[row]`` (negated where two overlap), for :func:`_fill_pixels` to
+    write a thread a pixel.
     """
     y = row0 + wp.tid()
     orow = y - out_row0
@@ -163,34 +162,24 @@ def _fill_rows(
         xs[o0 + wp.int64(2 * q + 2)] = vl
         xs[o0 + wp.int64(2 * q + 3)] = vr
         rs[o0 + wp.int64(q + 1)] = vg
-    # no two spans overlap (the usual case): every pixel is written once, left to right
+    # the pixels the spans cover, each once (sorted by start: a sweep); and whether two spans overlap
     overlap = int(0)
+    claimed = int(0)
     c = int(0)
     for p in range(ns):
         cl = int(xs[o0 + wp.int64(2 * p)])
+        cr = int(xs[o0 + wp.int64(2 * p + 1)])
         if cl < c:
             overlap = 1
-        c = wp.max(c, int(xs[o0 + wp.int64(2 * p + 1)]))
-    claimed = int(0)
-    if overlap == 0:
-        for p in range(ns):
-            claimed += int(xs[o0 + wp.int64(2 * p + 1)]) - int(xs[o0 + wp.int64(2 * p)])
-        spans[orow] = ns
-    else:
-        spans[orow] = -1
-        # overlapping outlines (after an edit moved a region): the region drawn first keeps the pixel
-        for x in range(width):
-            out[orow, x] = -1
-        for p in range(ns):
-            cl = int(xs[o0 + wp.int64(2 * p)])
-            cr = int(xs[o0 + wp.int64(2 * p + 1)])
-            g = rs[o0 + wp.int64(p)]
-            for x in range(cl, cr):
-                cur = out[orow, x]
-                if cur < 0 or g < rank[cur]:
-                    out[orow, x] = lut[g]
-                    if cur < 0:
-                        claimed += 1
+        lo = wp.max(cl, c)
+        if cr > lo:
+            claimed += cr - lo
+        c = wp.max(c, cr)
+    # overlapping outlines (after an edit moved a region): -ns, and each pixel of the row takes the region
+    # drawn first among its spans (_fill_pixels: a thread a pixel, not this row's thread)
+    spans[orow] = ns
+    if overlap != 0:
+        spans[orow] = -ns
     n_gap[orow] = width - claimed
 
 
@@ -198,14 +187,25 @@ def _fill_rows(
 def _fill_pixels(rowstart: wp.array(dtype=wp.int64), xs: wp.array(dtype=wp.float64), rs: wp.array(dtype=wp.int32),
                  lut: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.int32), row0: int, out_row0: int,
                  out: wp.array2d(dtype=wp.int32)):
-    """Pixel ``(row0 + i, x)`` of a row whose spans do not overlap: its span's region, else -1."""
+    """Pixel ``(row0 + i, x)``: the region of its span, else -1; where spans overlap (``spans`` negative),
+    the region drawn first among those covering it (the row's few spans, each looked at)."""
     i, x = wp.tid()
     y = row0 + i
     orow = y - out_row0
     ns = spans[orow]
-    if ns < 0:
-        return
     o0 = rowstart[y]
+    lab = int(-1)
+    if ns < 0:
+        first = int(-1)
+        for p in range(-ns):
+            g = rs[o0 + wp.int64(p)]
+            if int(xs[o0 + wp.int64(2 * p)]) <= x and x < int(xs[o0 + wp.int64(2 * p + 1)]):
+                if first < 0 or g < first:
+                    first = g
+        if first >= 0:
+            lab = lut[first]
+        out[orow, x] = lab
+        return
     # the last span starting at or before x (spans sorted by start, disjoint)
     lo = int(0)
     hi = ns
@@ -215,7 +215,6 @@ def _fill_pixels(rowstart: wp.array(dtype=wp.int64), xs: wp.array(dtype=wp.float
             lo = mid + 1
         else:
             hi = mid
-    lab = int(-1)
     if lo > 0 and x < int(xs[o0 + wp.int64(2 * lo - 1)]):
         lab = lut[rs[o0 + wp.int64(lo - 1)]]
     out[orow, x] = lab
