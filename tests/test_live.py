@@ -9,7 +9,7 @@ from editfixtures import DISC, PANEL, photo_model, scene_model
 from tpsv.edit import crossmap, deform, recolor
 from tpsv import tps
 from tpsv.gpu import tps as gtps
-from tpsv.rendering.live import LiveImage, kernel_keys
+from tpsv.rendering.live import LiveImage, kernel_keys, same_grouping
 from tpsv.rendering.raster import render
 
 
@@ -77,8 +77,14 @@ def test_deform_translation_reuses_every_kernel(model):
     live = LiveImage(model)
     new = deform.affine(model, DISC, [1, 0, 4, 0, 1, 0])
     st = live.update(new)
-    assert st.geometry and st.solved == 0  # a translation keeps every kernel's frame and features
+    # a translation keeps every kernel's frame and features, and the patches' pixel scales: no regrouping
+    assert st.geometry and st.solved == 0 and not st.regrouped
     assert np.array_equal(live.image, render(new))
+    # a scaling changes the pixel scales: the features are grouped again
+    bigger = deform.affine(new, DISC, [1.25, 0, 0, 0, 1.25, 0])
+    assert not same_grouping(new, bigger)
+    st = live.update(bigger)
+    assert st.regrouped and np.array_equal(live.image, render(bigger))
 
 
 def test_photo_recolor_counts():

@@ -56,6 +56,7 @@ from ..gpu import warp
 from ..gpu.coverage import DeviceBorders
 from ..gpu.patchmap import PatchSet
 from ..gpu.rasterise import changed_pixels, rasterise_dirty
+from ..tps.grouping import pixel_scales
 from .pixelmap import draw_order, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st_device, output_size
 
@@ -128,8 +129,11 @@ def _same_tps_params(a, b) -> bool:
 def same_grouping(a, b) -> bool:
     """Whether ``group_kernels`` gives both models the same kernels up to colours.
 
-    True when the TPS parameters, the patches and the features' regions and
-    ``(S, T)`` are identical (only colours, kinds or pairs may differ).
+    True when the TPS parameters, the features' regions and ``(S, T)`` and
+    the patches' pixel scales (all that the grouping reads of the patches,
+    :func:`tpsv.tps.grouping.pixel_scales`) are identical: only colours,
+    kinds or pairs may differ, or the patches moved without changing size
+    (a translation).
     """
     if len(a.regions) != len(b.regions) or not _same_tps_params(a, b):
         return False
@@ -139,8 +143,7 @@ def same_grouping(a, b) -> bool:
     if not (np.array_equal(np.asarray(fa.region), np.asarray(fb.region))
             and np.array_equal(np.asarray(fa.st, np.float64), np.asarray(fb.st, np.float64))):
         return False
-    return all(np.array_equal(np.asarray(ra.patch.ctrl, np.float64), np.asarray(rb.patch.ctrl, np.float64))
-               for ra, rb in zip(a.regions, b.regions))
+    return np.array_equal(pixel_scales([r.patch for r in a.regions]), pixel_scales([r.patch for r in b.regions]))
 
 
 def kernel_keys(ks) -> np.ndarray:
@@ -247,7 +250,10 @@ class LiveImage:
         watch("group")
         reuse = self._match(ks, model, full, regrouped)
         watch("match")
-        dk, solved = gtps.solve_reusing(ks, self._dk, reuse, device=self.device, threads=self.threads)
+        if self._unchanged(ks, regrouped, reuse):
+            dk, solved = self._dk, 0  # every kernel as it was: nothing to upload or solve
+        else:
+            dk, solved = gtps.solve_reusing(ks, self._dk, reuse, device=self.device, threads=self.threads)
         watch("solve")
         pixels = self._rasterise(dk, ks, reuse, dirty)
         watch("rasterise")
@@ -313,6 +319,13 @@ class LiveImage:
             return np.where(same, np.arange(n), -1)
         lookup = {key.tobytes(): i for i, key in enumerate(kernel_keys(old_ks))}
         return np.array([lookup.get(key.tobytes(), -1) for key in kernel_keys(ks)], np.int64)
+
+    def _unchanged(self, ks, regrouped: bool, reuse: np.ndarray) -> bool:
+        """Whether ``ks`` is the current kernel set as it is: same grouping, every kernel reusing its own
+        solution, the same fill colours (then the solved kernels on the device serve as they are)."""
+        old = self.kernels
+        return (self._dk is not None and not regrouped and len(reuse) == old.n_kernels
+                and bool((reuse == np.arange(len(reuse))).all()) and np.array_equal(ks.fill, old.fill))
 
     def _rasterise(self, dk, ks, reuse: np.ndarray, dirty) -> int:
         """Step 4: draw the dirty pixels again (all when ``dirty`` is None); returns how many."""
