@@ -10,16 +10,19 @@ kernels, the rendered image) and brings them up to date for a new model:
 1. **Geometry.** When an outline, a patch or the draw order changed
    (``deform``), the region map and the ``(S, T)`` map are recomputed; pixels
    whose region or ``(S, T)`` changed are dirty. Otherwise both are kept.
-2. **Grouping.** When the features' regions and ``(S, T)``, the patches and
-   the TPS parameters are unchanged (a colour edit: ``recolor``), the
-   grouping is unchanged too: the kernel set is reused with the new colours
+2. **Grouping.** When the features' regions and ``(S, T)``, the patches'
+   pixel scales and the TPS parameters are unchanged (a colour edit:
+   ``recolor``; a translation), the grouping is unchanged too: the kernel
+   set is reused with the new colours
    (:func:`tpsv.tps.recolor`, duplicates merged as :func:`tpsv.tps.group_kernels`
    merges them). Otherwise the kernels are regrouped with :func:`tpsv.tps.group_kernels`.
 3. **Solve.** A kernel whose system is identical to one already solved (same
    local points, colours, frame, count and smoothing: compared bit for bit)
    reuses that solution; the others are solved as a subset
    (:func:`tpsv.gpu.tps.solve_reusing`). A GPU solves them all: one pass
-   costs it less than the subset's copies.
+   costs it less than the subset's copies. When every kernel keeps its own
+   solution (a translation; an edit of no feature), the solved kernels on
+   the device serve as they are: nothing is uploaded or solved.
 4. **Rasterise.** Only dirty pixels are rasterised again: pixels of a region
    whose sub-patch grid changed, and pixels whose cell is within one cell of
    a re-solved kernel's cell (a kernel's support reaches at most half a cell
