@@ -386,6 +386,24 @@ def test_region_limits_are_where_coverage_reaches_one(seed, blur, scale):
     assert np.all(g.limit2.numpy() <= limit)
 
 
+@pytest.mark.parametrize("seed, blur, scale", [(1, 0.6, 1.0), (2, 1.2, 3.7), (6, 0.8, 8.0)])
+def test_distance_bound_by_window_is_meijsters(seed, blur, scale, monkeypatch):
+    """A GPU's bound a thread a cell (gpu.pieces._window) is the row pass's, value for value (both kernels
+    launched here on the CPU device)."""
+    m = blob_model(seed=seed, blur=blur)
+    W, H = round(m.width * scale), round(m.height * scale)
+    cell = 4
+    gw, gh = -(-W // cell), -(-H // cell)
+    pieces = DevicePieces(m, W, H, "cpu")
+    ga, gd, start = pieces.grid(cell, gw, gh)
+    reach = 0.5 + 3.0 * blur * scale
+    args = (ga, gd, start, 0.5 * pieces.longest, reach, W, H, MAX_CELLS, APART_CELL, "cpu")
+    rows = gpieces.apart(*args, window=False)[3].numpy()
+    monkeypatch.setattr(gpieces, "WINDOW", 1 << 30)  # (the window whatever the reach)
+    window = gpieces.apart(*args, window=True)[3].numpy()
+    assert np.array_equal(window, rows) and (rows < reach).mean() > 0.05
+
+
 def test_a_nearer_distance_bound_changes_no_pixel(monkeypatch):
     """Outlines dense beside the bound's grid get exact distances over fewer cells: still a lower bound, same mix."""
     m = blob_model(seed=2, blur=1.2)

@@ -62,6 +62,9 @@ _MULT = wp.constant(wp.uint64(0x9E3779B97F4A7C15))
 RUN = wp.constant(32)
 #: Cells along its column every midpoint's distance reaches at least (:func:`apart`: more where the outlines are sparse).
 FAR = 32
+#: Largest ``far`` (cells) of :func:`apart` found on a GPU by a window a thread a cell (:func:`_window`) rather
+#: than Meijster's pass a thread a row: at most ``2 * WINDOW - 1`` reads a cell.
+WINDOW = 32
 
 
 # --------------------------------------------------------------------------- pieces
@@ -451,13 +454,37 @@ def _rows(g: wp.array(dtype=wp.int32), near: wp.array(dtype=wp.int32), aw: int, 
         q = q - 1
 
 
+@wp.kernel
+def _window(g: wp.array(dtype=wp.int32), aw: int, far: int, acell: wp.float64, less: wp.float64,
+            apart: wp.array(dtype=wp.float32)):
+    """What :func:`_rows` finds, a thread a cell: the nearest of the columns fewer than ``far`` cells away.
+
+    The parabolas of farther columns reach no cell below ``far``, so the
+    minimum over the window is the envelope's wherever that is below
+    ``far``, the same integer and the same value written. For a short
+    ``far`` (:data:`WINDOW`): ``_rows`` runs a thread a row along it, a
+    few hundred threads that each wait on every read.
+    """
+    y, x = wp.tid()
+    r = y * aw
+    far2 = wp.int64(far) * wp.int64(far)
+    best = far2
+    for u in range(wp.max(0, x - far + 1), wp.min(aw, x + far)):
+        gu = g[r + u]
+        if gu < far:
+            best = wp.min(best, _parabola(x, u, gu))
+    if best < far2:
+        apart[r + x] = wp.float32(wp.max(wp.sqrt(wp.float64(best)) * acell - less, wp.float64(0.0)))
+
+
 def apart_size(width: int, height: int, max_cells: int, cell: int) -> tuple[int, int, int]:
     """Cell side and grid size (width, height in cells) of the distance bound: ``cell`` px, more past ``max_cells``."""
     acell = max(cell, int(np.ceil(np.sqrt(width * height / max_cells))))
     return acell, -(-width // acell), -(-height // acell)
 
 
-def apart(a, d, start, slack: float, reach: float, width: int, height: int, max_cells: int, cell: int, device: str):
+def apart(a, d, start, slack: float, reach: float, width: int, height: int, max_cells: int, cell: int, device: str,
+          window: bool | None = None):
     """A lower bound of every pixel's distance to the kept pieces, per cell of about ``cell`` pixels, up to ``reach``.
 
     The twin of :func:`apart_host` where that is below ``reach`` (exact
@@ -478,6 +505,12 @@ def apart(a, d, start, slack: float, reach: float, width: int, height: int, max_
     max_cells, cell : int
         Most cells, and the cell side where that allows.
     device : str
+    window : bool, optional
+        Find the bound a thread a cell (:func:`_window`) where it reaches at
+        most :data:`WINDOW` cells, not by Meijster's pass a thread a row (the
+        same values). Default: on a GPU, where the row pass is a few hundred
+        threads that each wait on every read; the CPU runs it as well on its
+        few cores.
 
     Returns
     -------
@@ -496,9 +529,14 @@ def apart(a, d, start, slack: float, reach: float, width: int, height: int, max_
     near = wp.zeros(ah * runs, dtype=wp.int32, device=device)
     # (one launch: CPU atomics are plain stores)
     wp.launch(_columns, dim=a.shape[0], inputs=[a, d, start, wp.float64(acell), aw, ah, far, g, near], device=device)
+    out = wp.full(ah * aw, np.float32(max(far * acell - less, 0.0)), dtype=wp.float32, device=device)
+    if window is None:
+        window = not wp.get_device(device).is_cpu
+    if window and far <= WINDOW:
+        wp.launch(_window, dim=(ah, aw), inputs=[g, aw, far, wp.float64(acell), wp.float64(less), out], device=device)
+        return acell, aw, ah, out
     s = wp.empty(ah * aw, dtype=wp.int32, device=device)
     t = wp.empty(ah * aw, dtype=wp.int32, device=device)
-    out = wp.full(ah * aw, np.float32(max(far * acell - less, 0.0)), dtype=wp.float32, device=device)
     wp.launch(_rows, dim=ah, inputs=[g, near, aw, far, s, t, wp.float64(acell), wp.float64(less), out], device=device)
     return acell, aw, ah, out
 
