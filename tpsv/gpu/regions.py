@@ -86,7 +86,6 @@ def _fill_rows(
     ry0: wp.array(dtype=wp.int32),
     rw: wp.array(dtype=wp.int32),
     lut: wp.array(dtype=wp.int32),
-    rank: wp.array(dtype=wp.int32),
     rowstart: wp.array(dtype=wp.int64),
     xs: wp.array(dtype=wp.float64),
     rs: wp.array(dtype=wp.int32),
@@ -333,8 +332,6 @@ class DeviceOutlines:
         # the host's own preparation: the same edges, boxes and float64 values
         self.coverage = cov = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
         self._lut_host = np.asarray(order + [-1], np.int32)
-        rank = np.zeros(max(len(order), 1), np.int32)  # region index -> drawing position
-        rank[order] = np.arange(len(order))
         self._gaps = None
         self._found = None
         self.n_regions = len(order)
@@ -367,8 +364,8 @@ class DeviceOutlines:
         self._arrays = upload(
             dev, (cov._xa, f64), (cov._ya, f64), (cov._xb, f64), (cov._yb, f64), (cov._reg, i32), (g0, i32),
             (g1, i32), (bstart, i32), (e[order_e], i32), (cov._x0, i32), (cov._y0, i32), (cov._w, i32),
-            (self._lut_host, i32), (rank, i32), (rowstart, wp.int64))
-        self._lut, self._rowstart = self._arrays[12], self._arrays[14]
+            (self._lut_host, i32), (rowstart, wp.int64))
+        self._lut, self._rowstart = self._arrays[12], self._arrays[13]
         n_cross = int(rowstart[-1])
         self._xs = wp.empty(max(n_cross, 1), dtype=wp.float64, device=dev)
         self._rs = wp.empty(max(n_cross, 1), dtype=wp.int32, device=dev)
