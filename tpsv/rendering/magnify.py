@@ -227,12 +227,12 @@ def magnify_model(model: Model, size: tuple[int, int], device: str = "cpu", refi
                         f"whole); magnify with --refine-iterations 0, which renders in bands")
     # one renderer's kernels, grouped, uploaded and solved once, for both renders (a picture over one piece
     # renders in bands with them)
-    prepared = Renderer(model, device) if W * H <= ONE_PIECE_PIXELS or steps else None
+    prepared = Renderer(model, device)
     if W * H <= ONE_PIECE_PIXELS:
         big = prepared.render(W, H, antialias=antialias, alpha=alpha)
     else:
-        big = render(model, width=W, height=H, device=device, antialias=antialias, alpha=alpha,
-                     kernels=None if prepared is None else prepared.kernels)
+        big = render(model, width=W, height=H, device=device, kernels=prepared.kernels, antialias=antialias,
+                     alpha=alpha)
     if not steps:
         return big
     small = prepared.render(model.width, model.height, antialias=antialias)
