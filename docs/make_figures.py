@@ -63,6 +63,25 @@ def detail() -> None:
           f"quality {DEFAULT_QUALITY} {len(default.data)} B ({8 * len(default.data) / px:.2f} bpp) {default.psnr:.2f} dB")
 
 
+def vector_ladder() -> None:
+    """astronaut's face, 4x: bicubic of the pixels, the pure vector image at quality 60 (4 px lattices)
+    and at quality 85 (2 px lattices)."""
+    from tpsv.image import read_labels
+
+    rgb = read_image(ROOT / "samples" / "astronaut.png")
+    lab = read_labels(ROOT / "samples" / "astronaut-labels.png")
+    y0, x0, h, w = 60, 190, 90, 82
+    crops = [cv2.resize(rgb[y0:y0 + h, x0:x0 + w], (4 * w, 4 * h), interpolation=cv2.INTER_CUBIC)]
+    notes = []
+    for q in (60, 85):
+        result = encode_quality(rgb, lab, quality=q, detail=False)
+        crops.append(render(result.model, scale=4)[4 * y0:4 * (y0 + h), 4 * x0:4 * (x0 + w)])
+        notes.append(f"quality {q} {len(result.data)} B ({8 * len(result.data) / rgb.shape[0] / rgb.shape[1]:.2f} bpp) "
+                     f"{result.psnr:.2f} dB")
+    write_image(IMG / "vector-4x.png", side_by_side(crops, height=360))
+    print("vector-4x: --no-detail " + "; ".join(notes))
+
+
 def edges() -> None:
     """8x crops: a synthetic shape's border (analytic, Lanczos, tpsv) and a photo's region border."""
     from tpsv import metrics
@@ -134,6 +153,7 @@ if __name__ == "__main__":
     IMG.mkdir(parents=True, exist_ok=True)
     hero()
     detail()
+    vector_ladder()
     edges()
     soft_edges()
     magnify()

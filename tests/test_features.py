@@ -356,9 +356,52 @@ def test_lattice_monotone_covering_and_in_range():
     top = len(lat.spacings) - 1
     assert np.all(lat.region_spacing(1e6) == top)
     # standing alone: the coarsest with 3 non-collinear cells of its own, every coarser one has fewer
+    finest = lat.spacings.index(4.0)  # finer lattices are the pure vector ladder's (min_spacing)
     for r, j in enumerate(lat.region_spacing(1e6, standalone=True)):
-        assert j == 0 or lat._stands(j, np.array([r]))[0]
+        assert j == finest or lat._stands(j, np.array([r]))[0]
         assert not any(lat._stands(k, np.array([r]))[0] for k in range(j + 1, top + 1))
+
+
+def test_lattices_finer_than_4_px_only_when_asked():
+    """Below 4 px (FINE_LATTICE_PX) only a ``min_spacing`` lets a region go, and then to no
+    spacing finer than it: the threshold modes and the detail layer's base keep 4 px at most."""
+    from tpsv.encode.features import FINE_LATTICE_PX, LATTICE_PX
+
+    rgb = textured()
+    labels = np.zeros(rgb.shape[:2], np.int32)
+    labels[:, 40:] = 1
+    g, lat = lattice_for(rgb, labels)
+    spacing = np.asarray(lat.spacings)
+    assert lat.spacings == FINE_LATTICE_PX + LATTICE_PX
+    assert np.all(spacing[lat.region_spacing(0.0)] == 4.0)  # nothing passes: the finest allowed
+    assert np.all(spacing[lat.region_spacing(0.0, min_spacing=2.0)] == 2.0)
+    assert np.all(spacing[lat.region_spacing(0.0, min_spacing=3.2)] == 3.5)
+    for t in (0.5, 3.0, 6.0, 20.0):
+        for least in (2.0, 2.5, 3.0, 4.0):
+            assert np.all(spacing[lat.region_spacing(t, min_spacing=least)] >= least)
+            assert np.all(lat.region_spacing(t, min_spacing=least) <= lat.region_spacing(t))
+    counts = [len(lat.features(t, min_spacing=2.0)) for t in (20.0, 6.0, 3.0, 0.5)]
+    assert counts == sorted(counts) and counts[-1] > 3 * len(lat.features(0.5))
+    # standing alone, the finest allowed lattice always qualifies
+    assert np.all(spacing[lat.region_spacing(0.0, standalone=True, min_spacing=2.0)] == 2.0)
+
+
+def test_the_pure_vector_ladder():
+    """``vector_params``: up to quality 60 the 4 px lattices (T_super 70 * (4/70)^((Q-1)/99))
+    at colour steps 16/8, then T_super, the colour steps and the finest spacing fall, to 2 px
+    lattices at the top."""
+    from tpsv.encode.rate import vector_params
+
+    ladder = [vector_params(q) for q in range(1, 101)]
+    for q in range(1, 61):
+        v = ladder[q - 1]
+        assert v["t_super"] == pytest.approx(70.0 * (4.0 / 70.0) ** ((q - 1) / 99.0), rel=2e-3)
+        assert (v["l_step"], v["ab_step"], v["min_spacing"]) == (16, 8, 4.0)
+    for a, b in zip(ladder, ladder[1:]):
+        assert b["t_super"] < a["t_super"] and b["min_spacing"] <= a["min_spacing"]
+        assert b["l_step"] <= a["l_step"] and b["ab_step"] <= a["ab_step"]
+    assert ladder[-1]["min_spacing"] == 2.0 and ladder[-1]["t_super"] == pytest.approx(2.0)
+    assert all(v["t_canny"] >= 1e9 for v in ladder)  # no curvilinear pairs
 
 
 def test_a_lattice_needing_anchors_is_not_taken():

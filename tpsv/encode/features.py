@@ -754,6 +754,10 @@ class FeatureExtractor:
 
 #: Lattice spacings (pixels) a region's gradation features may take ("tpsv" scheme).
 LATTICE_PX = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 24.0, 28.0, 32.0, 40.0, 48.0, 64.0)
+#: Finer spacings only the pure vector quality ladder takes (``min_spacing``): with a feature
+#: per 4-12 pixels its top on chelsea went from 30.70 dB at 0.90 bpp (4 px) to 34.21 dB at
+#: 2.27 bpp (docs/DESIGN.md, "Detail layer and rate control").
+FINE_LATTICE_PX = (2.0, 2.5, 3.0, 3.5)
 #: Cells holding a curvilinear feature are subdivided down to this side (pixels).
 EDGE_PX = 8.0
 
@@ -808,7 +812,7 @@ class LatticeGradation:
         st: np.ndarray,
         patches: list,
         *,
-        spacings: tuple = LATTICE_PX,
+        spacings: tuple = FINE_LATTICE_PX + LATTICE_PX,
         edge_px: float = EDGE_PX,
     ) -> None:
         self.h, self.w = index.shape
@@ -908,25 +912,28 @@ class LatticeGradation:
         return np.column_stack([(k % n[:, 0] + 0.5) / n[:, 0], (k // n[:, 0] + 0.5) / n[:, 1]])
 
     def region_spacing(self, t_super: float, max_spacing: np.ndarray | None = None,
-                       standalone: bool = False) -> np.ndarray:
+                       standalone: bool = False, min_spacing: float = LATTICE_PX[0]) -> np.ndarray:
         """Index into ``spacings`` per region for ``t_super``: the coarsest lattice whose cells'
         RMS colour deviation is within ``t_super`` and, with ``standalone``, that gives the
         region 3 non-collinear features by itself (:meth:`_stands`; the finest always
         qualifies), no coarser than ``max_spacing`` (pixels per region, optional) where that is
-        given; the finest when none is."""
+        given and no finer than ``min_spacing`` (pixels); the finest such when none is."""
         R, t_super = self.n_regions, float(t_super)
-        allowed = np.ones((len(self.spacings), R), bool)  # spacings ascending
+        spacings = np.asarray(self.spacings)  # ascending
+        finest = min(int(np.searchsorted(spacings, float(min_spacing) - 1e-9)), len(spacings) - 1)
+        allowed = np.ones((len(spacings), R), bool)
+        allowed[:finest] = False
         if max_spacing is not None:
-            allowed &= np.asarray(self.spacings)[:, None] <= np.asarray(max_spacing, np.float64)[None, :]
+            allowed &= spacings[:, None] <= np.asarray(max_spacing, np.float64)[None, :]
         # the coarsest allowed lattice within t_super, else the finest: from the coarsest down, a
         # lattice made only while a region still waits for it
-        pick = np.zeros(R, np.int64)
+        pick = np.full(R, finest, np.int64)
         open_ = np.ones(R, bool)
-        for j in range(len(self.spacings) - 1, -1, -1):
+        for j in range(len(self.spacings) - 1, finest - 1, -1):
             ok = open_ & allowed[j]
             if ok.any() and t_super <= self._rms_bound:
                 ok &= self.lattice(j)["region_rms"] <= t_super
-            if standalone and j > 0 and ok.any():
+            if standalone and j > finest and ok.any():
                 # a lattice that needs anchors is never taken while a finer one may stand
                 asked = np.flatnonzero(ok)
                 ok[asked] = self._stands(j, asked)
@@ -946,11 +953,12 @@ class LatticeGradation:
         return pos[self.pix[pos] == pixels]
 
     def features(self, t_super: float, edge_pixels: np.ndarray | None = None,
-                 max_spacing: np.ndarray | None = None, standalone: bool = False) -> FeatureSet:
+                 max_spacing: np.ndarray | None = None, standalone: bool = False,
+                 min_spacing: float = LATTICE_PX[0]) -> FeatureSet:
         """Gradation features for ``t_super``; cells holding ``edge_pixels`` (flat indices) are subdivided;
-        each region's spacing at most its ``max_spacing`` (pixels, optional); ``standalone``: as
-        :meth:`region_spacing`."""
-        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels), max_spacing, standalone)
+        each region's spacing at most its ``max_spacing`` (pixels, optional); ``standalone`` and
+        ``min_spacing``: as :meth:`region_spacing`."""
+        st, reg, lab = self._regions(t_super, self._pixel_rows(edge_pixels), max_spacing, standalone, min_spacing)
         xy = to_pixel_space(self.patches, reg, st)  # for de-duplication and anchors
         n = reg.size
         return FeatureSet(
@@ -958,8 +966,8 @@ class LatticeGradation:
             pair=np.full(n, -1, np.int32), st=st.astype(np.float64),
         )
 
-    def _regions(self, t_super, rows, max_spacing=None, standalone=False):
-        pick = self.region_spacing(t_super, max_spacing, standalone)
+    def _regions(self, t_super, rows, max_spacing=None, standalone=False, min_spacing=LATTICE_PX[0]):
+        pick = self.region_spacing(t_super, max_spacing, standalone, min_spacing)
         parts = []
         for j in range(len(self.spacings)):
             regs = np.nonzero(pick == j)[0]

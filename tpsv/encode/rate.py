@@ -35,7 +35,7 @@ from ..errors import TpsvError
 from ..model import DETAIL_ZERO, Params
 from ..rendering.raster import render
 from . import detail as detail_layer
-from .features import FeatureExtractor
+from .features import FINE_LATTICE_PX, LATTICE_PX, FeatureExtractor
 from .memory import give_back
 from .vectorize import (Candidates, Evaluation, VectorizeResult, alpha_geometry, fit_model, make_model,
                         scheme_params)
@@ -75,29 +75,43 @@ def base_fit_sub(width: int, height: int) -> int:
     return max(2, int(np.ceil(np.sqrt(width * height / 2**18))))
 
 
-#: Colour steps (l_step, ab_step) of the pure vector image from each quality up.
-VECTOR_STEPS = ((1, (16, 16)), (61, (8, 8)), (81, (4, 8)), (91, (2, 4)), (98, (1, 2)))
+#: The pure vector ladder (:func:`vector_params`): ``T_super`` at some qualities (geometric in
+#: between), the colour steps (l_step, ab_step) from each quality up, and the finest lattice
+#: spacing (px) at some qualities (linear in between).
+VECTOR_T_SUPER = ((1, 70.0), (60, 12.7), (90, 3.0), (100, 2.0))
+VECTOR_STEPS = ((1, (16, 8)), (61, (8, 4)), (91, (4, 4)), (98, (4, 2)))
+VECTOR_MIN_SPACING = ((60, LATTICE_PX[0]), (85, FINE_LATTICE_PX[0]))
 
 
 def vector_params(quality: int) -> dict:
-    """Vector-only settings for ``quality``: ``t_canny``, ``t_super``, ``l_step``, ``ab_step``.
+    """Vector-only settings for ``quality``: ``t_canny``, ``t_super``, ``l_step``, ``ab_step``
+    and ``min_spacing`` (the finest lattice a region may take, pixels).
 
-    ``T_super`` falls geometrically from 70 (Q 1) to 4 (Q 100): over the
-    samples' regions the lattices' RMS colour deviation runs from 4-18 (4 px
-    cells) to 26-70 (64 px), so the lattice goes from the coarsest to the
-    finest. Colour steps stay coarse (16) up to Q 60 and then go down to 1
-    and 2 (:data:`VECTOR_STEPS`): at equal bytes a finer lattice beats finer
-    colours (astronaut, ``T_super`` 10 at steps 16: 0.41 bpp, 24.97 dB;
-    ``T_super`` 20 at steps 2/4: 0.47 bpp, 23.06 dB). No curvilinear pairs:
-    switched on from Q 60 up (``T_canny`` 160 -> 40) they made chelsea's
-    curve jump from 0.1 to 4.4 bpp (35.9 dB) with no point between, and the
-    Monte Carlo search too mostly raises ``T_canny`` above every edge
-    (:mod:`tpsv.encode.vectorize`).
+    ``T_super`` falls geometrically from 70 (Q 1) to 12.7 (Q 60), 3 (Q 90)
+    and 2 (Q 100) (:data:`VECTOR_T_SUPER`) and the finest spacing from 4 px
+    (Q 60) to 2 px (Q 85, :data:`VECTOR_MIN_SPACING`): over the samples'
+    regions the lattices' RMS colour deviation runs from 4-18 (4 px cells)
+    to 26-70 (64 px), so the lattice goes from the coarsest to the finest.
+    Colour steps (:data:`VECTOR_STEPS`) are L 16 / a,b 8 up to Q 60, then
+    8/4, 4/4 and 4/2. a,b steps of 16 (the ladder's up to Q 60 before) made
+    pink and yellow blotches in astronaut's face at 4x, a,b steps of 8 on
+    lattices below 4 px pink and green ones in chelsea's fur at 8x. Finer
+    a,b steps cost bytes: astronaut at Q 60, steps 16/16 0.370 bpp / 24.20
+    dB, 16/8 0.425 bpp / 24.54 dB. On the fine lattices they also pay more
+    than a finer lattice: 3.2 dB per doubling of the bytes against 2
+    (chelsea, ``T_super`` 6.5: steps 8/8 1.27 bpp, 32.69 dB; 8/4 1.49 bpp,
+    33.44 dB). Steps 1/2 (the old top) on the 2 px lattice gained 0.25 dB
+    for 32 % more bytes than 2/4. No curvilinear pairs: switched on from Q
+    60 up (``T_canny`` 160 -> 40) they made chelsea's curve jump from 0.1 to
+    4.4 bpp (35.9 dB) with no point between, and the Monte Carlo search too
+    mostly raises ``T_canny`` above every edge (:mod:`tpsv.encode.vectorize`).
     """
-    q = (int(quality) - 1) / 99.0
-    t_super = float(70.0 * (4.0 / 70.0) ** q)
+    knots, values = zip(*VECTOR_T_SUPER)
+    t_super = float(np.exp(np.interp(int(quality), knots, np.log(values))))
     l_step, ab_step = [steps for start, steps in VECTOR_STEPS if quality >= start][-1]
-    return dict(t_canny=1e9, t_super=t_super, l_step=l_step, ab_step=ab_step)
+    knots, values = zip(*VECTOR_MIN_SPACING)
+    min_spacing = float(np.interp(int(quality), knots, values))
+    return dict(t_canny=1e9, t_super=t_super, l_step=l_step, ab_step=ab_step, min_spacing=min_spacing)
 
 
 def smooth_fills(rgb: np.ndarray, shown: np.ndarray, index: np.ndarray, transparent=()) -> np.ndarray:
@@ -241,7 +255,8 @@ class Trials:
             err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1]))
         else:
             v = vector_params(quality)
-            ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True)
+            ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True,
+                                                                      min_spacing=v["min_spacing"])
             model, err = _stamped(ev.model, quality), ev.mse
         # quantize is decode(encode()) without decoding the texture's AVIF again
         out = (codec.encode(model), codec.quantize(model), err)

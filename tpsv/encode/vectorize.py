@@ -97,7 +97,7 @@ from ..rendering.pixelmap import PixelMap
 from ..rendering.raster import render, shade
 from . import search as selection
 from .alpha import flatten, straight, transparent_mask, with_transparent_label
-from .features import DEDUP_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
+from .features import DEDUP_PX, LATTICE_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
 from .fit import fit_colors, fit_target
 from .memory import give_back
 
@@ -438,6 +438,7 @@ def make_model(
     fit_iterations: int = 6,
     max_spacing: np.ndarray | None = None,
     standalone: bool = False,
+    min_spacing: float = LATTICE_PX[0],
 ) -> Model:
     """Stage 4: the model for one pair of thresholds (``params.t_canny``, ``params.t_super``).
 
@@ -465,6 +466,10 @@ def make_model(
         file. The threshold modes and the detail layer's base keep the coarsest
         lattice with its anchors, which hold small shapes' colour up to their
         borders (docs/DESIGN.md, "Detail layer and rate control").
+    min_spacing : float
+        The finest lattice spacing (pixels) a region may get (``"tpsv"`` scheme):
+        only the pure vector quality ladder goes below 4
+        (:data:`tpsv.encode.features.FINE_LATTICE_PX`).
 
     Returns
     -------
@@ -476,7 +481,7 @@ def make_model(
         feats = extractor.extract(params.t_canny, params.t_super).in_patch_space(patches)
     else:
         feats = tpsv_features(geometry, extractor, params.t_canny, params.t_super,
-                              max_spacing, standalone).in_patch_space(patches)
+                              max_spacing, standalone, min_spacing).in_patch_space(patches)
         # scan order of the positions as stored (quant: round(S * (2^b - 1)))
         q = 2 ** codec.quant.st_bits_for(w, h, params.st_steps) - 1
         feats = feats.subset(scan_order(feats.region, np.rint(np.clip(feats.st, 0.0, 1.0) * q), feats.pair))
@@ -514,12 +519,13 @@ def fit_model(rgb: np.ndarray, geometry: Geometry, model: Model, fit_sub: int = 
 
 
 def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: float, t_super: float,
-                  max_spacing: np.ndarray | None = None, standalone: bool = False) -> FeatureSet:
+                  max_spacing: np.ndarray | None = None, standalone: bool = False,
+                  min_spacing: float = LATTICE_PX[0]) -> FeatureSet:
     """Features of the ``"tpsv"`` scheme (module doc), in pixel space with ``(S, T)`` where known.
 
     Curvilinear pairs (one per ``CURVE_STEP`` block), the gradation lattice
     (cells holding an edge pixel subdivided; each region's spacing at most its
-    ``max_spacing``, pixels, when given; ``standalone``: as
+    ``max_spacing``, pixels, when given; ``standalone`` and ``min_spacing``: as
     ``LatticeGradation.region_spacing``) without its features next to a pair,
     and the anchors regions still need.
     """
@@ -531,7 +537,7 @@ def tpsv_features(geometry: Geometry, extractor: FeatureExtractor, t_canny: floa
         cx = np.clip(np.floor(cur.xy[:, 0]).astype(np.int64), 0, w - 1)
         cy = np.clip(np.floor(cur.xy[:, 1]).astype(np.int64), 0, h - 1)
         edge = np.unique(cy * w + cx)
-    grad = drop_near(lattice.features(t_super, edge, max_spacing, standalone), cur, DEDUP_PX, (w, h))
+    grad = drop_near(lattice.features(t_super, edge, max_spacing, standalone, min_spacing), cur, DEDUP_PX, (w, h))
     both = FeatureSet.concat([cur, grad])
     return FeatureSet.concat([both, extractor.anchors(both)])
 
@@ -658,16 +664,17 @@ class Candidates:
         self.maps = stored_maps(geometry) if self.fitted else None
         self._fits: dict = {}  # (final, signature) -> (fitted lab, kernels)
         self._done: dict = {}  # (final, steps, signature) -> (decoded lab, decoded params, mse)
-        self._plain: dict = {}  # (t_canny, t_super) -> Evaluation, without fit
+        self._plain: dict = {}  # (t_canny, t_super, min_spacing) -> Evaluation, without fit
 
     def params_for(self, t_canny: float, t_super: float) -> Params:
         """The params of the candidate ``(t_canny, t_super)``."""
         return replace(self.params, t_canny=float(t_canny), t_super=float(t_super))
 
-    def model(self, t_canny: float, t_super: float) -> Model:
-        """Stage 4: the candidate's features with their unfitted colours (quantised as stored when fitted)."""
+    def model(self, t_canny: float, t_super: float, min_spacing: float = LATTICE_PX[0]) -> Model:
+        """Stage 4: the candidate's features with their unfitted colours (quantised as stored when fitted);
+        ``min_spacing`` as :func:`make_model`."""
         model = make_model(self.rgb, self.geometry, self.extractor, self.params_for(t_canny, t_super), fit=False,
-                           standalone=self.standalone)
+                           standalone=self.standalone, min_spacing=min_spacing)
         return codec.quantize(model) if self.fitted else model
 
     def fitted_colours(self, model: Model, final: bool) -> tuple:
@@ -685,7 +692,8 @@ class Candidates:
             self._fits[key] = (model.features.lab, ks)
         return self._fits[key]
 
-    def evaluate(self, t_canny: float, t_super: float, final: bool = True, steps: bool = False) -> Evaluation:
+    def evaluate(self, t_canny: float, t_super: float, final: bool = True, steps: bool = False,
+                 min_spacing: float = LATTICE_PX[0]) -> Evaluation:
         """Stage 6: the candidate encoded, decoded and rendered at scale 1.
 
         Parameters
@@ -695,17 +703,19 @@ class Candidates:
             Colours fitted on every pixel (else on the search's lattice).
         steps : bool
             Colour steps chosen from ``STEP_CHOICES`` by ``w`` (fitted models only).
+        min_spacing : float
+            As :func:`make_model`.
 
         Returns
         -------
         Evaluation
         """
         if not self.fitted:
-            key = (float(t_canny), float(t_super))
+            key = (float(t_canny), float(t_super), float(min_spacing))
             if key not in self._plain:
-                self._plain[key] = Evaluation(*evaluate(self.rgb, self.model(t_canny, t_super), self.device))
+                self._plain[key] = Evaluation(*evaluate(self.rgb, self.model(t_canny, t_super, min_spacing), self.device))
             return self._plain[key]
-        model = self.model(t_canny, t_super)
+        model = self.model(t_canny, t_super, min_spacing)
         key = (final, steps, _signature(model))
         hit = self._done.get(key)
         if hit is not None:
