@@ -69,6 +69,19 @@ def test_bytes_and_psnr_rise_with_quality(ladder, detail):
     assert [r.quality for r in runs] == [10, 40, 75, 95]
 
 
+def test_the_pure_vector_ladder_keeps_within_the_files_feature_limit(photo, ladder, monkeypatch):
+    """On a large photo the 2 px lattices of the top qualities would pass the format's 2^20
+    features: the ladder's finest spacing is held where its features fit (here a limit of 400
+    on 64 x 64 px, where quality 95 makes more)."""
+    rgb, labels = photo
+    assert len(ladder[(95, False)].model.features) > 400
+    monkeypatch.setattr(rate, "FEATURE_LIMIT", 400)
+    assert rate.finest_lattice(64, 64) == pytest.approx(np.sqrt(1.25 * 64 * 64 / 400))
+    held = encode_quality(rgb, labels, quality=95, detail=False)
+    assert 0 < len(held.model.features) <= 400
+    assert codec.decode(held.data).features.st.shape[0] == len(held.model.features)
+
+
 def test_the_detail_layer_is_what_reaches_high_quality(ladder):
     assert ladder[(95, True)].psnr > 38.0
     assert ladder[(95, True)].psnr > ladder[(95, False)].psnr + 3.0

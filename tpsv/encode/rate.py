@@ -83,6 +83,17 @@ VECTOR_STEPS = ((1, (16, 8)), (61, (8, 4)), (91, (4, 4)), (98, (4, 2)))
 VECTOR_MIN_SPACING = ((60, LATTICE_PX[0]), (85, FINE_LATTICE_PX[0]))
 
 
+#: Features a file holds at most (``tpsv.codec.MAX_FEATURES``): the ladder's lattices stay within it.
+FEATURE_LIMIT = codec.MAX_FEATURES
+
+
+def finest_lattice(width: int, height: int) -> float:
+    """The finest lattice spacing (px) whose features fit in a file of a ``width`` x ``height``
+    image: a feature per ``d^2`` pixels, with a quarter more for the cells along the borders
+    (:data:`FEATURE_LIMIT`; a 12-megapixel photo's pure vector ladder stops at 3.8 px)."""
+    return float(np.sqrt(1.25 * width * height / FEATURE_LIMIT))
+
+
 def vector_params(quality: int) -> dict:
     """Vector-only settings for ``quality``: ``t_canny``, ``t_super``, ``l_step``, ``ab_step``
     and ``min_spacing`` (the finest lattice a region may take, pixels).
@@ -255,8 +266,10 @@ class Trials:
             err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1]))
         else:
             v = vector_params(quality)
+            h, w = self.rgb.shape[:2]
+            finest = max(v["min_spacing"], finest_lattice(w, h))
             ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True,
-                                                                      min_spacing=v["min_spacing"])
+                                                                      min_spacing=finest)
             model, err = _stamped(ev.model, quality), ev.mse
         # quantize is decode(encode()) without decoding the texture's AVIF again
         out = (codec.encode(model), codec.quantize(model), err)
