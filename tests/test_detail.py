@@ -25,7 +25,7 @@ from tpsv.encode import rate
 from tpsv.encode.rate import encode_quality, smooth_fills
 from tpsv.errors import TpsvError, TpsvFormatError
 from tpsv.image import to_uint8
-from tpsv.model import DETAIL_FULL, DETAIL_LUMA, DETAIL_OFF
+from tpsv.model import CURVILINEAR, DETAIL_FULL, DETAIL_LUMA, DETAIL_OFF
 from tpsv.rendering.live import LiveImage
 from tpsv.rendering.raster import render, render_bands
 
@@ -72,14 +72,23 @@ def test_bytes_and_psnr_rise_with_quality(ladder, detail):
 def test_the_pure_vector_ladder_keeps_within_the_files_feature_limit(photo, ladder, monkeypatch):
     """On a large photo the 2 px lattices of the top qualities would pass the format's 2^20
     features: the ladder's finest spacing is held where its features fit (here a limit of 400
-    on 64 x 64 px, where quality 95 makes more)."""
+    on 64 x 64 px, where quality 95 makes more), and the curvilinear pairs of quality 100 are
+    left out where they would not fit."""
     rgb, labels = photo
     assert len(ladder[(95, False)].model.features) > 400
+    top = encode_quality(rgb, labels, quality=100, detail=False)
     monkeypatch.setattr(rate, "FEATURE_LIMIT", 400)
     assert rate.finest_lattice(64, 64) == pytest.approx(np.sqrt(1.25 * 64 * 64 / 400))
     held = encode_quality(rgb, labels, quality=95, detail=False)
     assert 0 < len(held.model.features) <= 400
     assert codec.decode(held.data).features.st.shape[0] == len(held.model.features)
+    # the top qualities' curvilinear pairs are left out where they would not fit
+    assert np.any(top.model.features.kind == CURVILINEAR)
+    monkeypatch.setattr(rate, "FEATURE_LIMIT", len(top.model.features) - 1)
+    plain = encode_quality(rgb, labels, quality=100, detail=False)
+    assert np.all(plain.model.features.kind != CURVILINEAR)
+    assert len(plain.model.features) <= len(top.model.features) - 1
+
 
 
 def test_the_detail_layer_is_what_reaches_high_quality(ladder):

@@ -80,6 +80,8 @@ def base_fit_sub(width: int, height: int) -> int:
 #: spacing (px) at some qualities (linear in between).
 VECTOR_T_SUPER = ((1, 70.0), (60, 12.7), (90, 3.0), (100, 2.0))
 VECTOR_STEPS = ((1, (16, 8)), (61, (8, 4)), (91, (4, 4)), (98, (4, 2)))
+#: ``T_canny`` of the curvilinear pairs from each quality up (none below the first).
+VECTOR_T_CANNY = ((1, 1e9), (96, 300.0), (98, 200.0), (100, 150.0))
 VECTOR_MIN_SPACING = ((60, LATTICE_PX[0]), (85, FINE_LATTICE_PX[0]))
 
 
@@ -112,17 +114,20 @@ def vector_params(quality: int) -> dict:
     than a finer lattice: 3.2 dB per doubling of the bytes against 2
     (chelsea, ``T_super`` 6.5: steps 8/8 1.27 bpp, 32.69 dB; 8/4 1.49 bpp,
     33.44 dB). Steps 1/2 (the old top) on the 2 px lattice gained 0.25 dB
-    for 32 % more bytes than 2/4. No curvilinear pairs: switched on from Q
-    60 up (``T_canny`` 160 -> 40) they made chelsea's curve jump from 0.1 to
-    4.4 bpp (35.9 dB) with no point between, and the Monte Carlo search too
-    mostly raises ``T_canny`` above every edge (:mod:`tpsv.encode.vectorize`).
+    for 32 % more bytes than 2/4. Curvilinear pairs only from Q 96 up
+    (:data:`VECTOR_T_CANNY`), on top of the 2 px lattices: there they gain
+    1.5-3.8 dB per doubling of the bytes (astronaut, ``T_canny`` 300: 2.45
+    -> 4.44 bpp, 30.87 -> 34.13 dB). Switched on from Q 60 up (``T_canny``
+    160 -> 40) they made chelsea's curve jump from 0.1 to 4.4 bpp (35.9 dB)
+    with no point between.
     """
     knots, values = zip(*VECTOR_T_SUPER)
     t_super = float(np.exp(np.interp(int(quality), knots, np.log(values))))
     l_step, ab_step = [steps for start, steps in VECTOR_STEPS if quality >= start][-1]
+    t_canny = [t for start, t in VECTOR_T_CANNY if quality >= start][-1]
     knots, values = zip(*VECTOR_MIN_SPACING)
     min_spacing = float(np.interp(int(quality), knots, values))
-    return dict(t_canny=1e9, t_super=t_super, l_step=l_step, ab_step=ab_step, min_spacing=min_spacing)
+    return dict(t_canny=t_canny, t_super=t_super, l_step=l_step, ab_step=ab_step, min_spacing=min_spacing)
 
 
 def smooth_fills(rgb: np.ndarray, shown: np.ndarray, index: np.ndarray, transparent=()) -> np.ndarray:
@@ -268,8 +273,11 @@ class Trials:
             v = vector_params(quality)
             h, w = self.rgb.shape[:2]
             finest = max(v["min_spacing"], finest_lattice(w, h))
-            ev = self._candidates(v["l_step"], v["ab_step"]).evaluate(v["t_canny"], v["t_super"], final=True,
-                                                                      min_spacing=finest)
+            cands = self._candidates(v["l_step"], v["ab_step"])
+            t_canny = v["t_canny"]
+            if t_canny < BASE_T_CANNY and len(cands.model(t_canny, v["t_super"], finest).features) > FEATURE_LIMIT:
+                t_canny = BASE_T_CANNY  # the pairs do not fit in the file (a large photo): the lattice alone
+            ev = cands.evaluate(t_canny, v["t_super"], final=True, min_spacing=finest)
             model, err = _stamped(ev.model, quality), ev.mse
         # quantize is decode(encode()) without decoding the texture's AVIF again
         out = (codec.encode(model), codec.quantize(model), err)
