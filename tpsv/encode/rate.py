@@ -16,8 +16,8 @@ changes) and makes ``--target-psnr`` / ``--max-bytes`` cheap: the base is
 built once and only the texture is coded again while ``Q`` is searched.
 
 Without the detail layer (``--no-detail``) ``Q`` sets the vector model
-itself: lattice fineness (``T_super``) and colour steps, from
-:func:`vector_params`.
+itself: lattice fineness (``T_super``, down to 2 px lattices), colour steps
+and, at the top, curvilinear pairs, from :func:`vector_params`.
 """
 
 from __future__ import annotations
