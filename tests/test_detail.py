@@ -90,7 +90,6 @@ def test_the_pure_vector_ladder_keeps_within_the_files_feature_limit(photo, ladd
     assert len(plain.model.features) <= len(top.model.features) - 1
 
 
-
 def test_the_detail_layer_is_what_reaches_high_quality(ladder):
     assert ladder[(95, True)].psnr > 38.0
     assert ladder[(95, True)].psnr > ladder[(95, False)].psnr + 3.0
