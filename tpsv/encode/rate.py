@@ -43,8 +43,10 @@ from .vectorize import (Candidates, Evaluation, VectorizeResult, alpha_geometry,
 #: The default quality: at least 32 dB on every bundled sample (README, "Quality").
 DEFAULT_QUALITY = 75
 MIN_QUALITY, MAX_QUALITY = 1, 100
+#: A ``T_canny`` above every gradient: no curvilinear pairs.
+NO_PAIRS = 1e9
 #: The vector base under the detail layer: the coarsest lattice, no pairs.
-BASE_T_CANNY = 1e9
+BASE_T_CANNY = NO_PAIRS
 BASE_T_SUPER = 1e9
 #: The base's colour steps. Its few features cost little at any step, while steps of 16
 #: (6 L units) left bumps in smooth fills that the texture, magnified, cannot hide: the
@@ -81,7 +83,7 @@ def base_fit_sub(width: int, height: int) -> int:
 VECTOR_T_SUPER = ((1, 70.0), (60, 12.7), (90, 3.0), (100, 2.0))
 VECTOR_STEPS = ((1, (16, 8)), (61, (8, 4)), (91, (4, 4)), (98, (4, 2)))
 #: ``T_canny`` of the curvilinear pairs from each quality up (none below the first).
-VECTOR_T_CANNY = ((1, 1e9), (96, 300.0), (98, 200.0), (100, 150.0))
+VECTOR_T_CANNY = ((1, NO_PAIRS), (96, 300.0), (98, 200.0), (100, 150.0))
 VECTOR_MIN_SPACING = ((60, LATTICE_PX[0]), (85, FINE_LATTICE_PX[0]))
 
 
@@ -275,8 +277,8 @@ class Trials:
             finest = max(v["min_spacing"], finest_lattice(w, h))
             cands = self._candidates(v["l_step"], v["ab_step"])
             t_canny = v["t_canny"]
-            if t_canny < BASE_T_CANNY and len(cands.model(t_canny, v["t_super"], finest).features) > FEATURE_LIMIT:
-                t_canny = BASE_T_CANNY  # the pairs do not fit in the file (a large photo): the lattice alone
+            if t_canny < NO_PAIRS and len(cands.model(t_canny, v["t_super"], finest).features) > FEATURE_LIMIT:
+                t_canny = NO_PAIRS  # the pairs do not fit in the file (a large photo): the lattice alone
             ev = cands.evaluate(t_canny, v["t_super"], final=True, min_spacing=finest)
             model, err = _stamped(ev.model, quality), ev.mse
         # quantize is decode(encode()) without decoding the texture's AVIF again
