@@ -48,6 +48,13 @@ kernels' cardinal matrices from one batched solve. A :class:`FitTarget` may
 hold every ``sub``-th pixel per axis only (the search fits on every second:
 4 times cheaper, within 0.1-1 dB of the full fit, least good with dense edge
 pairs); beyond :data:`MAX_NNZ` stored numbers the pixels are subsampled so.
+The design (4-byte numbers) is the fit's largest array, 285 bytes per pixel
+of a `--no-detail` model on 2 px lattices; its build adds a few bytes per
+entry and one batch of kernels per thread, and the conjugate gradients a few
+arrays of a colour per pixel. On a pixel lattice of 2 (the detail layer's
+base, the search) the fit is a quarter of that. Fitting on every pixel
+cannot be made cheaper by subsampling: on every second pixel the 2 px
+lattices of `--no-detail` qualities 85-100 lose 2.5-3.3 dB.
 """
 
 from __future__ import annotations
@@ -204,12 +211,14 @@ def _cardinal_chunk(Pk: np.ndarray, mk: np.ndarray, lamk: np.ndarray, K: int) ->
     return Zk
 
 
-def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
-    """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K).
+def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K) of ``dtype``.
 
     ``Z[k] @ h`` gives kernel ``k``'s coefficients ``[w_1..w_K, b0, b_u, b_v]``
     in its local frame for slot values ``h`` (inactive slots: zero rows and
     columns). Positions are rounded to float32 like the device solver's.
+    ``Z`` is worked out in float64 either way (``dtype=np.float32``: rounded
+    as it is stored, so a large set of kernels is never held in float64).
     """
     n, K = ks.n_kernels, ks.kernel_size
     mask = ks.index >= 0
@@ -218,14 +227,14 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
     fr = ks.frame
     P = np.stack([(st[..., 0] - fr[:, None, 0]) * fr[:, None, 2], (st[..., 1] - fr[:, None, 1]) * fr[:, None, 3]], -1)
     P = np.where(mask[..., None], P.astype(np.float32).astype(np.float64), 0.0)
-    Z = np.zeros((n, K + 3, K))
+    Z = np.zeros((n, K + 3, K), dtype)
     if n == 0:
         return P, Z
     lam = tps.kernel_lambda(ks)
     ok = ~ks.degenerate
     if ok.any():
         sel = np.nonzero(ok)[0]
-        chunks = [sel[i:i + 512] for i in range(0, sel.size, 512)]
+        chunks = [sel[i:i + 128] for i in range(0, sel.size, 128)]  # a few MB of temporaries a thread
 
         def work(c):
             Z[c] = _cardinal_chunk(P[c], mask[c], lam[c], K)
@@ -246,11 +255,13 @@ def cardinal_matrices(ks: tps.KernelSet) -> tuple[np.ndarray, np.ndarray]:
                 dvec = e / ln
         t = (p - cen) @ dvec
         stt = float(t @ t)
-        Z[k, K, :m] = 1.0 / m
+        zk = np.zeros((3, m))
+        zk[0] = 1.0 / m
         if stt > 0:
-            Z[k, K, :m] -= t * float(cen @ dvec) / stt
-            Z[k, K + 1, :m] = t * dvec[0] / stt
-            Z[k, K + 2, :m] = t * dvec[1] / stt
+            zk[0] -= t * float(cen @ dvec) / stt
+            zk[1] = t * dvec[0] / stt
+            zk[2] = t * dvec[1] / stt
+        Z[k, K:, :m] = zk
     return P, Z
 
 
@@ -283,8 +294,9 @@ class _Block:
     """Kernels of similar pixel counts, padded to one dense batch."""
 
     kernels: np.ndarray  # (b,) kernel ids
-    rows: np.ndarray  # (b, me) fitted pixel of each entry (padding: 0)
+    rows: np.ndarray  # (b, me) int32 fitted pixel of each entry (padding: 0); a view of Design.rows
     data: np.ndarray  # (b, me, K) float32 coefficients (padding: 0)
+    start: int = 0  # offset of the block's entries in Design.rows
 
 
 @dataclass
@@ -295,28 +307,32 @@ class Design:
     (blend weight times the cardinal functions at the pixel) for its slots
     ``index[kernel]``; kernels of similar pixel counts are padded into one batch
     (:class:`_Block`) so that products are a few batched matrix products.
+    ``rows`` holds every block's entries' pixels end to end (each block's
+    ``rows`` is a view of it), so that a product sums them with one
+    ``bincount`` and no copy.
     """
 
     blocks: list
     index: np.ndarray  # (n_k, K) feature per slot (inactive: 0, with zero data)
     n_pix: int
     n_features: int
+    rows: np.ndarray  # (entries,) int32, the blocks' rows end to end
 
     def forward(self, H: np.ndarray) -> np.ndarray:
         """``A H``: (n_pix, c) for H (F, c)."""
         H32 = np.asarray(H, np.float32)
         G = H32[self.index]  # (n_k, K, c)
         c = H32.shape[1]
+        vals = np.empty((self.rows.size, c), np.float32)
 
         def one(blk):
-            return np.matmul(blk.data, G[blk.kernels])  # (b, me, c)
+            b, me = blk.rows.shape
+            np.matmul(blk.data, G[blk.kernels], out=vals[blk.start:blk.start + b * me].reshape(b, me, c))
 
-        outs = _pool_map(one, self.blocks)
-        out = np.zeros((self.n_pix, c))
-        rows = np.concatenate([blk.rows.ravel() for blk in self.blocks]) if self.blocks else np.zeros(0, np.int64)
-        vals = np.concatenate([o.reshape(-1, c) for o in outs]) if outs else np.zeros((0, c), np.float32)
+        _pool_map(one, self.blocks)
+        out = np.empty((self.n_pix, c))
         for j in range(c):
-            out[:, j] = np.bincount(rows, vals[:, j], self.n_pix)
+            out[:, j] = np.bincount(self.rows, vals[:, j], self.n_pix)
         return out
 
     def _adjoint(self, R: np.ndarray, square: bool) -> np.ndarray:
@@ -345,35 +361,53 @@ class Design:
         return self._adjoint(Wd, True)
 
 
+#: Points whose blend weights :func:`build_design` works out at once (bounds its temporaries).
+DESIGN_CHUNK = 1 << 16
+
+
+def _entries(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple:
+    """The (point, kernel) pairs of nonzero blend weight, sorted by kernel: ``(pixel int32, kernel
+    int32, weight float32)``, worked out :data:`DESIGN_CHUNK` points at a time."""
+    parts = []
+    for a in range(0, region.shape[0], DESIGN_CHUNK):
+        kid, bw = tps.blend_weights(ks, region[a:a + DESIGN_CHUNK], st[a:a + DESIGN_CHUNK])
+        use = kid >= 0
+        pix = np.broadcast_to(np.arange(a, a + kid.shape[0], dtype=np.int32)[:, None], kid.shape)[use]
+        parts.append((pix, kid[use].astype(np.int32), bw[use].astype(np.float32)))
+        del kid, bw, use
+    if not parts:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32)
+    e_pix, e_k, e_w = (np.concatenate(x) for x in zip(*parts))
+    del parts
+    order = np.argsort(e_k, kind="stable")
+    return e_pix[order], e_k[order], e_w[order]
+
+
 def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple[Design, int]:
     """The render operator at the given points (region (n,), st (n, 2)).
 
     Returns the design and its number of stored coefficients (padding excluded).
+    Besides the design, the build holds 12 bytes per (point, kernel) pair and
+    one batch of kernels at a time per thread.
     """
     n = region.shape[0]
     F = ks.st.shape[0]
     K = ks.kernel_size
-    kid, bw = tps.blend_weights(ks, region, st)
-    P, Z = cardinal_matrices(ks)
-    use = kid >= 0
-    e_pix = np.broadcast_to(np.arange(n)[:, None], kid.shape)[use]
-    e_k = kid[use]
-    e_w = bw[use]
-    order = np.argsort(e_k, kind="stable")
-    e_pix, e_k, e_w = e_pix[order], e_k[order], e_w[order].astype(np.float32)
+    st = np.asarray(st, np.float64)
+    e_pix, e_k, e_w = _entries(ks, region, st)
     bounds = np.searchsorted(e_k, np.arange(ks.n_kernels + 1))
+    del e_k
     ne = e_pix.size
-    fr = ks.frame[e_k]
-    q = np.asarray(st, np.float64)[e_pix]
-    u = ((q[:, 0] - fr[:, 0]) * fr[:, 2]).astype(np.float32)
-    v = ((q[:, 1] - fr[:, 1]) * fr[:, 3]).astype(np.float32)
+    P, Zc = cardinal_matrices(ks, np.float32)  # Zc: (n_k, K + 3, K)
     P32 = P.astype(np.float32)
-    Zc = Z.astype(np.float32)  # (n_k, K + 3, K)
+    del P
     counts = np.diff(bounds)
     # kernels in groups of similar entry counts, each group one padded batch
     order_k = np.argsort(counts, kind="stable")
     order_k = order_k[counts[order_k] > 0]
-    budget = 2_000_000  # padded entries x slots per batch
+    # padded entries x slots per batch: each thread's temporaries are a few times this in floats
+    # (2 000 000 made them 25 MB a thread, as much as the design of a 256 x 256 picture)
+    budget = 500_000
     groups = []
     i = 0
     nk = order_k.size
@@ -384,28 +418,40 @@ def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple
             j += 1
         groups.append(order_k[i:j])
         i = j
+    sizes = [len(g) * int(counts[g].max()) for g in groups]
+    starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    rows = np.empty(int(starts[-1]), np.int32)
 
-    def batch(ks_):
+    def batch(gi):
+        ks_ = groups[gi]
         me = int(counts[ks_].max())
         pos = bounds[ks_][:, None] + np.arange(me)[None, :]  # (b, me)
         valid = np.arange(me)[None, :] < counts[ks_][:, None]
         pos = np.where(valid, pos, bounds[ks_][:, None])
-        ub, vb = u[pos], v[pos]  # (b, me)
+        pix = e_pix[pos]
+        fr = ks.frame[ks_][:, None, :]
+        q = st[pix]
+        ub = ((q[..., 0] - fr[..., 0]) * fr[..., 2]).astype(np.float32)  # (b, me), the kernel's local frame
+        vb = ((q[..., 1] - fr[..., 1]) * fr[..., 3]).astype(np.float32)
+        del q
         pk = P32[ks_]  # (b, K, 2)
         d2 = (ub[:, :, None] - pk[:, None, :, 0]) ** 2
         d2 += (vb[:, :, None] - pk[:, None, :, 1]) ** 2
         B = np.empty((len(ks_), me, K + 3), np.float32)
         _phi_into(d2, B[:, :, :K])
+        del d2
         B[:, :, K] = 1.0
         B[:, :, K + 1] = ub
         B[:, :, K + 2] = vb
         out = np.matmul(B, Zc[ks_])  # (b, me, K)
         out *= np.where(valid, e_w[pos], 0.0)[:, :, None]
-        return _Block(kernels=ks_, rows=e_pix[pos], data=out)
+        view = rows[starts[gi]:starts[gi + 1]].reshape(pix.shape)
+        view[...] = pix
+        return _Block(kernels=ks_, rows=view, data=out, start=int(starts[gi]))
 
-    blocks = _pool_map(batch, groups)
+    blocks = _pool_map(batch, range(len(groups)))
     index = np.where(ks.index >= 0, ks.index, 0).astype(np.int64)
-    return Design(blocks=blocks, index=index, n_pix=n, n_features=F), ne * K
+    return Design(blocks=blocks, index=index, n_pix=n, n_features=F, rows=rows), ne * K
 
 
 def fit_colors(
@@ -460,11 +506,14 @@ def fit_colors(
     if target is None:
         target = _target_for(model, rgb, ks, device, maps, max_nnz)
     # pixels of regions without kernels are left out (the fill colour is no feature's)
-    sel = np.nonzero(ks.grid[np.maximum(target.region, 0), 0] > 0)[0]
-    des, nnz = build_design(ks, target.region[sel], target.st[sel])
-    lab_t = target.lab[sel]
+    sel = ks.grid[np.maximum(target.region, 0), 0] > 0
+    # (a copy of the target's per-pixel arrays only where some pixels are left out: they are
+    # the largest arrays of the fit after its design)
+    pick = (lambda a: a) if sel.all() else (lambda a, sel=np.nonzero(sel)[0]: a[sel])
+    des, nnz = build_design(ks, pick(target.region), pick(target.st))
+    lab_t = pick(target.lab)
     h0 = ks.lab.astype(np.float64).copy()
-    normal = _Normal(des, target.W[sel], float(mu) * max(des.n_pix, 1) / max(F, 1))
+    normal = _Normal(des, pick(target.W), float(mu) * max(des.n_pix, 1) / max(F, 1))
     freg = np.asarray(model.features.region, np.int64)
     X, it, res0, res1 = _region_cg(normal, normal.rhs(lab_t, h0), normal.jacobi(), h0, freg, iterations, tol)
     used = np.zeros(F, bool)
@@ -501,7 +550,10 @@ class _Normal:
     def wmul(self, Y: np.ndarray) -> np.ndarray:
         """``W Y`` per pixel for Y (n, 3)."""
         W = self.W
-        return W[:, :, 0] * Y[:, 0:1] + W[:, :, 1] * Y[:, 1:2] + W[:, :, 2] * Y[:, 2:3]
+        out = W[:, :, 0] * Y[:, 0:1]  # summed in place, in the same order: one temporary, not three
+        out += W[:, :, 1] * Y[:, 1:2]
+        out += W[:, :, 2] * Y[:, 2:3]
+        return out
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         return self.des.adjoint(self.wmul(self.des.forward(X))) + self.mu * X
