@@ -588,3 +588,35 @@ def test_a_border_the_label_map_places_ends_on_the_precise_curve():
     assert len(junctions) == 2
     for v in junctions:
         assert abs(np.hypot(v[0] - cx, v[1] - cy) - r) < 0.1, v
+
+
+def test_holes_nobody_fills_are_dropped():
+    """A hole of a region's field that no other region lies in (a spur of a neighbour pinched off
+    by noise along the border) is no hole: the region covers it. Such holes once outnumbered the
+    regions of a segmented 1024 x 1024 photo, and its file could not be written."""
+    square = np.array([[0, 0], [20, 0], [20, 20], [0, 20]], np.float64)
+    filled = np.array([[5, 5], [5, 8], [8, 8], [8, 5]], np.float64)
+    orphan = np.array([[14.2, 14.2], [14.2, 14.8], [14.8, 14.8], [14.8, 14.2]], np.float64)
+    boxes = [(slice(0, 20), slice(0, 20)), (slice(5, 8), slice(5, 8)), (slice(14, 30), slice(0, 30))]  # pixels
+    got = subpixel._drop_orphan_holes([[square, filled, orphan], [filled[::-1]], None], boxes)
+    assert len(got[0]) == 2 and got[0][1] is filled
+    assert len(got[1]) == 1 and got[2] is None
+
+
+@pytest.mark.parametrize("n, seed", [(160, 2), (192, 0)])
+def test_every_fitted_hole_holds_another_region(n, seed):
+    """Segmented noisy photos whose fitted outlines had holes with no region in them."""
+    from test_memory import photo
+
+    from tpsv import codec
+    from tpsv.encode.vectorize import image_geometry
+    from tpsv.model import Features, Model
+
+    g = image_geometry(photo(n, n, seed), None, 0)
+    for r, region in enumerate(g.regions):
+        for hole in region.outline[1:]:
+            lo, hi = hole.min(0) - subpixel.HOLE_SLACK, hole.max(0) + subpixel.HOLE_SLACK
+            assert any(np.all(q.outline[0].min(0) >= lo) and np.all(q.outline[0].max(0) <= hi)
+                       for k, q in enumerate(g.regions) if k != r)
+    model = Model(width=n, height=n, regions=g.regions, features=Features.empty(), curves=g.curves)
+    assert len(codec.decode(codec.encode(model)).regions) == len(g.regions)

@@ -884,8 +884,41 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
     # where only the smoothed mask speaks, the border is known to half a pixel: a coarser grid there
     steps = [np.where(_tolerances(reading, q, tolerance, W, H) > 2 * tolerance, LOOSE_STEP, 1) for q in simple]
     simple = iter(_snap_to_grid(simple, W, H, steps))
-    return [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
+    done = [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
             for polys, r, box in zip(raw, regions, boxes)]
+    return _drop_orphan_holes(done, boxes)
+
+
+#: How far (px) a region's pixels may reach beyond the fitted hole it fills.
+HOLE_SLACK = 1.5
+
+
+def _drop_orphan_holes(outlines: list, boxes: list[tuple[slice, slice]]) -> list:
+    """Each region's holes that no other region fills, left out (the region covers them).
+
+    A hole of a region's field is another region's outline only where that
+    region lies wholly inside it; a thin spur of a neighbour that its own field
+    pinches off (noise along a border) leaves a hole in this region that nobody
+    fills: a gap in the picture, and a file the decoder refuses when such holes
+    outnumber the regions. A hole is kept when some other region lies
+    within its bounding box, give or take :data:`HOLE_SLACK`: its fitted outer
+    polygon, or its pixels where it has no fitted outline (``boxes``).
+    """
+    lo = np.array([[b[1].start, b[0].start] if p is None else p[0].min(0) for p, b in zip(outlines, boxes)], np.float64)
+    hi = np.array([[b[1].stop, b[0].stop] if p is None else p[0].max(0) for p, b in zip(outlines, boxes)], np.float64)
+    out = []
+    for r, polys in enumerate(outlines):
+        if polys is None or len(polys) == 1:
+            out.append(polys)
+            continue
+        keep = [polys[0]]
+        for hole in polys[1:]:
+            inside = np.all(lo >= hole.min(0) - HOLE_SLACK, axis=1) & np.all(hi <= hole.max(0) + HOLE_SLACK, axis=1)
+            inside[r] = False
+            if inside.any():
+                keep.append(hole)
+        out.append(keep)
+    return out
 
 
 def _arc(p: np.ndarray) -> np.ndarray:
