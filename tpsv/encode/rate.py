@@ -276,10 +276,12 @@ class Trials:
             h, w = self.rgb.shape[:2]
             finest = max(v["min_spacing"], finest_lattice(w, h))
             cands = self._candidates(v["l_step"], v["ab_step"])
-            t_canny = v["t_canny"]
-            if t_canny < NO_PAIRS and len(cands.model(t_canny, v["t_super"], finest).features) > FEATURE_LIMIT:
-                t_canny = NO_PAIRS  # the pairs do not fit in the file (a large photo): the lattice alone
-            ev = cands.evaluate(t_canny, v["t_super"], final=True, min_spacing=finest)
+            t_canny, made = v["t_canny"], None
+            if t_canny < NO_PAIRS:
+                made = cands.model(t_canny, v["t_super"], finest)
+                if len(made.features) > FEATURE_LIMIT:
+                    t_canny, made = NO_PAIRS, None  # the pairs do not fit in the file (a large photo): the lattice alone
+            ev = cands.evaluate(t_canny, v["t_super"], final=True, min_spacing=finest, model=made)
             model, err = _stamped(ev.model, quality), ev.mse
         # quantize is decode(encode()) without decoding the texture's AVIF again
         out = (codec.encode(model), codec.quantize(model), err)

@@ -695,7 +695,7 @@ class Candidates:
         return self._fits[key]
 
     def evaluate(self, t_canny: float, t_super: float, final: bool = True, steps: bool = False,
-                 min_spacing: float = LATTICE_PX[0]) -> Evaluation:
+                 min_spacing: float = LATTICE_PX[0], model: Model | None = None) -> Evaluation:
         """Stage 6: the candidate encoded, decoded and rendered at scale 1.
 
         Parameters
@@ -707,6 +707,9 @@ class Candidates:
             Colour steps chosen from ``STEP_CHOICES`` by ``w`` (fitted models only).
         min_spacing : float
             As :func:`make_model`.
+        model : Model, optional
+            ``self.model(t_canny, t_super, min_spacing)`` when the caller has
+            made it already (its features are the candidate's largest stage).
 
         Returns
         -------
@@ -715,9 +718,11 @@ class Candidates:
         if not self.fitted:
             key = (float(t_canny), float(t_super), float(min_spacing))
             if key not in self._plain:
-                self._plain[key] = Evaluation(*evaluate(self.rgb, self.model(t_canny, t_super, min_spacing), self.device))
+                made = model if model is not None else self.model(t_canny, t_super, min_spacing)
+                self._plain[key] = Evaluation(*evaluate(self.rgb, made, self.device))
             return self._plain[key]
-        model = self.model(t_canny, t_super, min_spacing)
+        if model is None:
+            model = self.model(t_canny, t_super, min_spacing)
         key = (final, steps, _signature(model))
         hit = self._done.get(key)
         if hit is not None:
