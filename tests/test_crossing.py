@@ -33,6 +33,23 @@ def test_crossings_match_a_brute_force():
         assert np.array_equal(crossings(p), brute_force(p))
 
 
+def test_small_polygons_checked_pair_by_pair_agree_with_the_grid(monkeypatch):
+    """Polygons of up to ``SMALL`` edges are first compared pair by pair; what ``crossings`` and
+    ``mend`` return (pairs, their order under a limit, the mended polygon) is the grid's."""
+    from tpsv.geometry import crossing
+
+    rng = np.random.default_rng(11)
+    polys = [rng.integers(0, 8, (int(rng.integers(4, crossing.SMALL + 1)), 2)).astype(np.float64) for _ in range(200)]
+    polys += [np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float), np.array([[0, 0], [1, 1], [1, 0], [0, 1]], float)]
+    small = [(crossings(p), crossings(p, limit=1), mend(p, step=1.0)) for p in polys]
+    monkeypatch.setattr(crossing, "SMALL", 0)  # the grid alone
+    for p, (every, first, mended) in zip(polys, small):
+        assert np.array_equal(every, crossings(p)) and np.array_equal(every, brute_force(p))
+        assert np.array_equal(first, crossings(p, limit=1))
+        assert np.array_equal(mended, mend(p, step=1.0))
+    assert sum(len(c) > 0 for c, _, _ in small) > 50  # most random polygons cross themselves
+
+
 def test_touching_and_collinear_are_not_crossings():
     # a region pinched to one point between two diagonal pixels visits it twice
     pinch = np.array([[0, 0], [2, 0], [2, 2], [4, 2], [4, 4], [2, 4], [2, 2], [0, 2]], float)
