@@ -330,8 +330,13 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     Returns
     -------
     Geometry
+
+    Raises
+    ------
+    TpsvError
+        More connected regions than a file holds (``tpsv.codec.MAX_REGIONS``).
     """
-    regions, index = build_regions(labels, rgb)
+    regions, index = build_regions(labels, rgb, max_regions=codec.MAX_REGIONS)
     if rgb is None:
         return Geometry(regions=regions, index=index)
     h, w = index.shape

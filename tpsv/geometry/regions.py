@@ -18,7 +18,8 @@ from ..model import Patch, Region
 from . import curves, outline, patch, segment, subpixel
 
 
-def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[list[Region], np.ndarray]:
+def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None,
+                  max_regions: int | None = None) -> tuple[list[Region], np.ndarray]:
     """Regions with outlines and patches from a label map.
 
     With ``rgb`` the outlines are to be drawn as curves (``Model.curves``,
@@ -36,6 +37,9 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
         The image: outlines are then fitted to its edges at sub-pixel
         precision (:mod:`tpsv.geometry.subpixel`); without it they follow
         the label map's pixel edges (:func:`tpsv.geometry.outline.trace_outline`).
+    max_regions : int, optional
+        Refuse a label map of more connected parts than this before any
+        outline is made (a file holds at most ``tpsv.codec.MAX_REGIONS``).
 
     Returns
     -------
@@ -47,10 +51,14 @@ def build_regions(labels: np.ndarray, rgb: np.ndarray | None = None) -> tuple[li
     Raises
     ------
     TpsvError
-        The label map has no region.
+        The label map has no region, or more than ``max_regions``.
     """
     h, w = labels.shape
     comp, slices, present = _components(labels)
+    if max_regions is not None and len(present) > max_regions:
+        # (a file's limit, found before the minutes the outlines of that many regions take)
+        raise TpsvError(f"{len(present)} regions (the label map's connected parts) exceed the {max_regions} "
+                        f"a .tpsv holds")
     regions: list[Region] = []
     fitted = [None] * len(present)
     if rgb is not None:
