@@ -889,7 +889,8 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
     return _drop_orphan_holes(done, boxes)
 
 
-#: How far (px) a region's pixels may reach beyond the fitted hole it fills.
+#: How far (px) a region filling a hole may reach beyond the hole's bounding box (its fitted outline, or its
+#: pixels where it has none).
 HOLE_SLACK = 1.5
 
 
