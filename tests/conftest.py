@@ -53,3 +53,12 @@ def small_labels(small_rgb) -> np.ndarray:
     lab = np.zeros((h, w), np.int32)
     lab[:, int(w * 0.4):] = 1
     return lab
+
+
+@pytest.fixture
+def every_band(monkeypatch):
+    """CPU launches split into 4 bands a host thread however little work they hold (tests' pictures are
+    too small to pay for bands), so that tests of the split see one."""
+    from tpsv.gpu import device
+
+    monkeypatch.setattr(device, "BAND_SECONDS", 1e-12)

@@ -197,7 +197,7 @@ def test_bands_are_the_frame(blur):
     assert blur is None or (frame.other2 >= 0).any()
 
 
-def test_pixels_of_no_region_and_threads(monkeypatch):
+def test_pixels_of_no_region_and_threads(monkeypatch, every_band):
     """Pixels of no region (-1) never mix nor are mixed into; any split over host threads gives the same result."""
     m = blob_model(seed=6, blur=0.8)
     W, H = round(m.width * 3.0), round(m.height * 3.0)

@@ -131,10 +131,10 @@ def test_bands_equal_whole_frame():
         assert np.array_equal(np.concatenate(parts), whole), step
 
 
-def test_threads_identical():
+def test_threads_identical(every_band):
     labels, _ = blobs(9)
     m = labels_model(labels)
-    W, H = size_at(m, 8.0)  # large enough that the CPU launches are split
+    W, H = size_at(m, 8.0)
     one = DeviceOutlines(m, W, H, "cpu", threads=1).index()
     two = DeviceOutlines(m, W, H, "cpu", threads=2).index()
     assert np.array_equal(one, two)

@@ -80,7 +80,7 @@ def test_area_taps_are_opencvs_inter_area(big, small):
     np.testing.assert_allclose(mine, cv2.resize(col, (4, small), interpolation=cv2.INTER_AREA), atol=1e-6)
 
 
-def test_refinement_is_the_same_in_bands_of_host_threads():
+def test_refinement_is_the_same_in_bands_of_host_threads(every_band):
     truth = _disc(96)
     small = _area(truth, (32, 32))
     start = np.clip(cv2.resize(small, (96, 96), interpolation=cv2.INTER_CUBIC), 0, 1)

@@ -333,10 +333,10 @@ def test_a_renderer_puts_the_patches_on_the_device_once(smooth_model, monkeypatc
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="fork only")
-def test_a_forked_child_renders(smooth_model):
+def test_a_forked_child_renders(smooth_model, every_band):
     """CPU launches share a pool of host threads; a forked child (the fuzzing runner, a
     batch worker) has none of its threads and must make its own instead of waiting forever."""
-    before = render.render(smooth_model, scale=2, threads=2)  # large enough to launch in bands
+    before = render.render(smooth_model, scale=2, threads=2)  # in bands (every_band)
     pid = os.fork()
     if pid == 0:  # the child: killed by the alarm if it hangs
         signal.alarm(60)

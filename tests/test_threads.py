@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from tpsv import threads
@@ -31,3 +32,28 @@ def test_a_forked_child_gets_pools_of_its_own():
         os._exit(0 if ok else 3)
     _, status = os.waitpid(pid, 0)
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+
+
+def test_launches_split_only_as_far_as_their_work_pays():
+    """A CPU launch is cut into bands of at least BAND_SECONDS of work, at most 4 a thread; CUDA never."""
+    from tpsv.gpu import device
+
+    least = device.BAND_SECONDS
+    assert device.bands("cpu", 1000, 2, 0.5 * least) == 1  # less than two bands' work: the calling thread
+    assert device.bands("cpu", 1000, 2, 2.5 * least) == 2
+    assert device.bands("cpu", 1000, 2, 100 * least) == 8
+    assert device.bands("cpu", 1000, 2) == 8  # no estimate: 4 a thread
+    assert device.bands("cpu", 3, 2, 100 * least) == 3  # a row a band at most
+    assert device.bands("cpu", 1000, 1, 100 * least) == 1
+    assert device.bands("cuda:0", 1000, 8, 100 * least) == 1
+
+
+@pytest.mark.parametrize("seconds", [None, 1e-9, 0.05])
+def test_split_launch_covers_each_row_once(seconds):
+    from tpsv.gpu import device
+
+    seen = []
+    device.split_launch("cpu", 1001, 2, lambda a, b: seen.append((a, b)), seconds)
+    covered = np.concatenate([np.arange(a, b) for a, b in sorted(seen)])
+    assert np.array_equal(covered, np.arange(1001))
+    assert len(seen) == device.bands("cpu", 1001, 2, seconds)

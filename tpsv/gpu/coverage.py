@@ -67,7 +67,7 @@ from ..rendering.borders import (MAX_REJECTED, MAX_VISIT, SECOND_LEAST, BorderMi
 from . import resolve_device
 from . import warp as _warp
 from .pieces import DevicePieces, apart
-from .rasterise import _BAND_MIN, _launch_banded
+from .rasterise import _launch_banded
 from .transfer import upload
 
 wp.set_module_options({"enable_backward": False})
@@ -942,7 +942,7 @@ class DeviceBorders:
                                                                  a + r0, mask[r0 * groups:r1 * groups],
                                                                  count[r0 * groups:r1 * groups]], device=dev)
 
-        _launch_banded(_candidates, b - a, (b - a) * W >= _BAND_MIN, dev, threads, launch_rows)
+        _launch_banded(_candidates, b - a, (b - a) * W, dev, threads, launch_rows)
         offs = wp.empty(n, dtype=wp.int32, device=dev)
         wp.utils.array_scan(count, offs, inclusive=True)
         nc = int(offs[n - 1:].numpy()[0])
@@ -953,7 +953,7 @@ class DeviceBorders:
         def launch_gather(i0, i1):
             wp.launch(_gather, dim=i1 - i0, inputs=[mask[i0:i1], count[i0:i1], offs[i0:i1], i0, W, cand], device=dev)
 
-        _launch_banded(_gather, n, n >= _BAND_MIN, dev, threads, launch_gather)
+        _launch_banded(_gather, n, n, dev, threads, launch_gather)
         del mask, count, offs
         # the regions near each search cell of the rows the map covers (a second border's search passes over
         # the cells of none but the pixel's two)
@@ -970,7 +970,7 @@ class DeviceBorders:
                 wp.launch(_row_regions, dim=(r1 - r0, g.gw), inputs=[index_d[r0:r1], g.cell, edge, rows_m[r0:r1]],
                           device=dev)
 
-            _launch_banded(_row_regions, h_ext, h_ext * W >= _BAND_MIN, dev, threads, launch_rows_m)
+            _launch_banded(_row_regions, h_ext, h_ext * W, dev, threads, launch_rows_m)
             wp.launch(_cell_regions, dim=masks.shape, inputs=[rows_m, iy0, g.cell, mrow0, edge, masks], device=dev)
             del rows_m
             near = wp.empty_like(masks)
@@ -995,7 +995,7 @@ class DeviceBorders:
                                                      other2[i0:i1], alpha2[i0:i1], masks, near, mrow0,
                                                      wp.float64(self.nest)], device=dev)
 
-        _launch_banded(_measure, nc, nc >= _BAND_MIN // 16, dev, threads, launch_measure)
+        _launch_banded(_measure, nc, nc, dev, threads, launch_measure)
         koffs = wp.empty(nc, dtype=wp.int32, device=dev)
         wp.utils.array_scan(keep, koffs, inclusive=True)
         nk = int(koffs[nc - 1:].numpy()[0])
@@ -1011,7 +1011,7 @@ class DeviceBorders:
                                                      wp.float64(self.ky), out.pixels, out.other, out.alpha,
                                                      out.other2, out.alpha2, out.xy], device=dev)
 
-        _launch_banded(_compact, nc, nc >= _BAND_MIN, dev, threads, launch_compact)
+        _launch_banded(_compact, nc, nc, dev, threads, launch_compact)
         return out
 
     def _host_mix(self, index_d, y0: int, a: int, b: int, halo) -> DeviceBorderMix:

@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from ..model import DETAIL_GAIN, DETAIL_YCC, DETAIL_ZERO
-from .rasterise import _BAND_MIN, _as_region_map, _as_st_map, _launch_banded
+from .rasterise import _as_region_map, _as_st_map, _launch_banded
 from .cubic import sample as _sample
 from .transfer import upload
 
@@ -135,7 +135,7 @@ def add_detail(dd: DeviceDetail, out: wp.array, region, st, pixels=None, threads
         def launch(r0, r1):
             wp.launch(_add_detail, dim=(r1 - r0, W), inputs=[reg, stm, dd.frame, dd.mode, dd.tex, r0, out], device=dev)
 
-        _launch_banded(_add_detail, H, H * W >= _BAND_MIN, dev, threads, launch)
+        _launch_banded(_add_detail, H, H * W, dev, threads, launch)
         return
     pix = np.ascontiguousarray(pixels, np.int32)
     if pix.size == 0:
@@ -146,4 +146,4 @@ def add_detail(dd: DeviceDetail, out: wp.array, region, st, pixels=None, threads
         wp.launch(_add_detail_list, dim=b - a, inputs=[reg, stm, pix_d[a:b], int(W), dd.frame, dd.mode, dd.tex, out],
                   device=dev)
 
-    _launch_banded(_add_detail_list, pix.size, pix.size >= _BAND_MIN, dev, threads, launch_list)
+    _launch_banded(_add_detail_list, pix.size, pix.size, dev, threads, launch_list)

@@ -16,11 +16,15 @@ references, never copies.
 CPU bands: Warp's CPU launches run one thread each and release the GIL, so
 on the CPU device the solve kernels (other than the tile solve) and the
 rasteriser's pixel rows are split into bands launched from a few host
-threads (:func:`split_launch`); results do not depend on the split.
+threads (:func:`split_launch`); results do not depend on the split. A band
+costs its launch (20-50 us of Python packing the arguments, under the GIL)
+and a hand-off between threads, so a launch is split only as far as its
+work pays for that (:func:`bands`).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 
@@ -173,16 +177,41 @@ def upload(ks, device: str = "cpu") -> DeviceKernels:
     )
 
 
+#: Least work (seconds on one core) of a band of a CPU launch: a launch with less than twice this runs
+#: whole on the calling thread. On the 2-core CI machine, launches of 0.1-1 ms of work took 2-8 times
+#: as long in 8 bands on 2 threads (a 512 x 512 render spent 8 ms so); launches of 5 ms and more gain
+#: from bands.
+BAND_SECONDS = 2e-3
+
+
+@functools.cache
+def _cores() -> int:
+    return os.cpu_count() or 1
+
+
 def host_threads(device: str, threads: int | None) -> int:
     """Host threads that launch bands on ``device``: 1 on CUDA; ``threads`` or every core on the CPU."""
     if not device.startswith("cpu"):
         return 1
     if threads is None:
-        threads = os.cpu_count() or 1
+        threads = _cores()
     return max(1, int(threads))
 
 
-def split_launch(device: str, n: int, threads: int | None, launch) -> None:
+def bands(device: str, n: int, threads: int | None, seconds: float | None = None) -> int:
+    """Bands :func:`split_launch` cuts a launch of extent ``n`` into: at most 4 per host thread, and
+    (when the launch's work on one core, ``seconds``, is given) at least :data:`BAND_SECONDS` of work
+    each; 1 on CUDA."""
+    nt = min(host_threads(device, threads), n)
+    if nt <= 1:
+        return 1
+    nb = min(4 * nt, n)
+    if seconds is not None:
+        nb = min(nb, int(seconds / BAND_SECONDS))
+    return max(nb, 1)
+
+
+def split_launch(device: str, n: int, threads: int | None, launch, seconds: float | None = None) -> None:
     """Call ``launch(lo, hi)`` over ``[0, n)``: once on CUDA; in bands from host threads on the CPU.
 
     Parameters
@@ -196,12 +225,15 @@ def split_launch(device: str, n: int, threads: int | None, launch) -> None:
         ``launch(lo, hi)`` launches the band ``[lo, hi)``; the kernel's
         module must be loaded first (``wp.load_module``), so that no two
         threads compile it.
+    seconds : float, optional
+        The launch's work on one core (an estimate): how many bands it pays
+        for (:func:`bands`; default: 4 a thread).
     """
-    nt = min(host_threads(device, threads), n)
-    if nt <= 1:
+    nb = bands(device, n, threads, seconds)
+    if nb <= 1:
         launch(0, n)
         return
-    nb = nt * 4
+    nt = min(host_threads(device, threads), nb)
     edges = np.linspace(0, n, nb + 1).astype(int)
-    bands = [(int(edges[i]), int(edges[i + 1])) for i in range(nb) if edges[i + 1] > edges[i]]
-    list(host_pool("launch", nt).map(lambda b: launch(*b), bands))
+    spans = [(int(edges[i]), int(edges[i + 1])) for i in range(nb) if edges[i + 1] > edges[i]]
+    list(host_pool("launch", nt).map(lambda b: launch(*b), spans))

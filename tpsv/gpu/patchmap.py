@@ -393,7 +393,7 @@ def inverse_map(
     -------
     wp.array2d(dtype=wp.vec2), shape of ``index``, on ``device``.
     """
-    from .rasterise import _BAND_MIN, _launch_banded
+    from .rasterise import _launch_banded
 
     ps = patch_set if patch_set is not None else PatchSet.build(patches, device)
     device = ps.device
@@ -410,7 +410,7 @@ def inverse_map(
         wp.launch(_map_kernel, dim=(b - a, W), inputs=[ps.arrays, opt, index[a:b], sx, sy, int(row0) + a, out[a:b]],
                   device=device)
 
-    _launch_banded(_map_kernel, H, H * W >= _BAND_MIN, device, threads, launch)
+    _launch_banded(_map_kernel, H, H * W, device, threads, launch)
     return out
 
 

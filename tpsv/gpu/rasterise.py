@@ -34,7 +34,7 @@ from ..errors import TpsvError
 from . import resolve_device
 from . import warp as _warp
 from .color import lab_to_srgb
-from .device import BlendArrays, DeviceKernels, split_launch, upload
+from .device import BlendArrays, DeviceKernels, bands, split_launch, upload
 from .solve import solve
 from .transfer import upload as _send
 
@@ -46,8 +46,17 @@ wp.set_module_options({"enable_backward": False, "fast_math": True})
 MODE_SRGB = wp.constant(0)
 MODE_LAB = wp.constant(1)
 
-#: Smallest launch (pixels) that is split into bands on the CPU device.
-_BAND_MIN = 4096
+#: Work of each kernel launched in bands, on one core of the 2-core CI machine: seconds per item of
+#: the launch (a pixel of the frame or band; a listed pixel, candidate or group of ``_gather``; a
+#: big pixel that ``_area`` reads), measured on the samples' default files at scale 1 (the rasteriser's
+#: with 16 features a pixel). How far :func:`tpsv.gpu.device.bands` splits a launch depends on it;
+#: only its order of magnitude matters.
+HOST_SECONDS = {
+    "_rasterise": 330e-9, "_rasterise_dirty": 330e-9, "_mix_border": 330e-9, "_add_detail": 34e-9,
+    "_add_detail_list": 60e-9, "_map_kernel": 34e-9, "_fill_rows": 2.5e-9, "_fill_pixels": 17e-9,
+    "_find_gaps": 7e-9, "_put_gaps": 5e-9, "_candidates": 7e-9, "_gather": 10e-9, "_row_regions": 10e-9,
+    "_measure": 640e-9, "_compact": 18e-9, "_tv": 27e-9, "_area": 6e-9, "_cubic": 37e-9,
+}
 
 
 # --------------------------------------------------------------------------- per-pixel body
@@ -326,13 +335,16 @@ def _pixel_maps(dk: DeviceKernels, region, st):
     return _as_region_map(region, dk.device), _as_st_map(st, dk.device)
 
 
-def _launch_banded(kernel, n: int, large: bool, dev: str, threads: int | None, launch) -> None:
-    """``launch(lo, hi)`` over ``[0, n)``; in bands from host threads when ``large`` on the CPU device."""
-    if dev.startswith("cpu") and large:
-        wp.load_module(module=kernel.module, device=dev)
-        split_launch(dev, n, threads, launch)
-    else:
-        launch(0, n)
+def _launch_banded(kernel, n: int, items: int, dev: str, threads: int | None, launch) -> None:
+    """``launch(lo, hi)`` over ``[0, n)``; on the CPU device in as many bands from host threads as the
+    work of its ``items`` (:data:`HOST_SECONDS`) pays for."""
+    if dev.startswith("cpu"):
+        seconds = items * HOST_SECONDS[kernel.key]
+        if bands(dev, n, threads, seconds) > 1:
+            wp.load_module(module=kernel.module, device=dev)
+            split_launch(dev, n, threads, launch, seconds)
+            return
+    launch(0, n)
 
 
 def rasterise(
@@ -383,7 +395,7 @@ def rasterise(
     def launch(r0, r1):
         wp.launch(_rasterise, dim=(r1 - r0, W), inputs=[dk.blend, reg, stm, r0, bg, int(clamp), int(mode), out], device=dev)
 
-    _launch_banded(_rasterise, H, H * W >= _BAND_MIN, dev, threads, launch)  # bands of rows
+    _launch_banded(_rasterise, H, H * W, dev, threads, launch)  # bands of rows
     return out
 
 
@@ -479,7 +491,7 @@ def rasterise_dirty(
                                                               int(clamp), int(mode), out, counts], device=dev)
 
     # bands of rows: a row's count is written by one band only
-    _launch_banded(_rasterise_dirty, H, H * W >= _BAND_MIN, dev, threads, launch)
+    _launch_banded(_rasterise_dirty, H, H * W, dev, threads, launch)
     return int(counts.numpy().sum())
 
 
@@ -532,7 +544,7 @@ def mix_border_device(dk: DeviceKernels, out: wp.array, mix, st, st2, threads: i
                                                   mix.other2[a:b], st2[a:b], mix.alpha2[a:b], int(W), int(clamp), out],
                   device=dev)
 
-    _launch_banded(_mix_border, n, n >= _BAND_MIN, dev, threads, launch)
+    _launch_banded(_mix_border, n, n, dev, threads, launch)
     return out
 
 

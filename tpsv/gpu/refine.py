@@ -24,7 +24,7 @@ import numpy as np
 import warp as wp
 
 from .cubic import sample
-from .rasterise import _BAND_MIN, _launch_banded
+from .rasterise import _launch_banded
 from .transfer import upload
 
 wp.set_module_options({"enable_backward": False})
@@ -128,16 +128,15 @@ def refine_device(big: np.ndarray, small: np.ndarray, iterations: int, eps: floa
     rows_cols = upload(device, (r0, wp.int32), (r1, wp.int32), (r2, wp.float32), (c0, wp.int32), (c1, wp.int32),
                        (c2, wp.float32))
     eps2, k = float(eps) ** 2, float(step) * float(eps)
-    large = H * W >= _BAND_MIN
     for it in range(iterations):
         src, dst = x, nxt
-        _launch_banded(_tv, H, large, device, threads, lambda a, b: wp.launch(
+        _launch_banded(_tv, H, H * W, device, threads, lambda a, b: wp.launch(
             _tv, dim=(b - a, W), inputs=[src, a, eps2, k, dst], device=device))
         x, nxt = nxt, x
         cur = x
-        _launch_banded(_area, h, h * w >= _BAND_MIN, device, threads, lambda a, b: wp.launch(
+        _launch_banded(_area, h, H * W, device, threads, lambda a, b: wp.launch(
             _area, dim=(b - a, w), inputs=[cur, y, *rows_cols, a, res], device=device))
-        _launch_banded(_cubic, H, large, device, threads, lambda a, b: wp.launch(
+        _launch_banded(_cubic, H, H * W, device, threads, lambda a, b: wp.launch(
             _cubic, dim=(b - a, W), inputs=[res, h / H, w / W, a, cur], device=device))
         if progress is not None:
             progress(it + 1, iterations)

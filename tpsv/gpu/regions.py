@@ -51,7 +51,7 @@ from ..geometry import curves, outline
 from ..rendering.pixelmap import draw_order
 from . import resolve_device
 from . import warp as _warp
-from .rasterise import _BAND_MIN, _launch_banded
+from .rasterise import _launch_banded
 from .transfer import upload
 
 # fuse_fp off: the crossing x must round as numpy's (no FMA), or edge pixels could flip on CUDA
@@ -399,9 +399,8 @@ class DeviceOutlines:
             wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._rowstart, self._xs, self._rs, self._lut,
                                                             spans, y0 + a, y0, out], device=dev)
 
-        large = (y1 - y0) * W >= _BAND_MIN
-        _launch_banded(_fill_rows, y1 - y0, large, dev, self.threads, launch)
-        _launch_banded(_fill_pixels, y1 - y0, large, dev, self.threads, fill)
+        _launch_banded(_fill_rows, y1 - y0, (y1 - y0) * W, dev, self.threads, launch)
+        _launch_banded(_fill_pixels, y1 - y0, (y1 - y0) * W, dev, self.threads, fill)
         return out, n_gap
 
     def index_device(self, y0: int = 0, y1: int | None = None) -> wp.array:
@@ -431,7 +430,6 @@ class DeviceOutlines:
             self._found = wp.empty((H, W), dtype=wp.int32, device=dev)
         found = self._found
         unresolved = wp.zeros(1, dtype=wp.int32, device=dev)
-        large = (y1 - y0) * W >= _BAND_MIN
 
         def find(a, b):
             wp.launch(_find_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, unresolved],
@@ -440,8 +438,8 @@ class DeviceOutlines:
         def put(a, b):
             wp.launch(_put_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, y0 + a, found], device=dev)
 
-        _launch_banded(_find_gaps, y1 - y0, large, dev, self.threads, find)
-        _launch_banded(_put_gaps, y1 - y0, large, dev, self.threads, put)
+        _launch_banded(_find_gaps, y1 - y0, (y1 - y0) * W, dev, self.threads, find)
+        _launch_banded(_put_gaps, y1 - y0, (y1 - y0) * W, dev, self.threads, put)
         out = cov[y0 - c0:y1 - c0]
         # one int read back: whether any pixel needs the host (none within SEARCH px of a covered one)
         if int(unresolved.numpy()[0]):

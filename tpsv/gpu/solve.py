@@ -56,6 +56,11 @@ wp.set_module_options({"enable_backward": False, "fast_math": True})
 #: Columns of A per thread of ``_build`` (threads per kernel: K x ceil(K / BUILD_CHUNK)).
 BUILD_CHUNK = 16
 
+#: Work of the banded build and finish on one core of the CI machine, seconds per kernel of 32 features
+#: (it grows as K^2): how far :func:`tpsv.gpu.device.split_launch` splits them.
+_BUILD_SECONDS = 37e-6
+_FINISH_SECONDS = 19e-6
+
 #: :func:`solve_reusing` solves everything when more than this fraction of the kernels changed.
 FULL_SOLVE_FRACTION = 0.6
 
@@ -407,10 +412,11 @@ def solve(dk: DeviceKernels, block_dim: int | None = None, threads: int | None =
         if K > 3:
             wp.launch(_write_w, dim=(hi - lo, K - 3), inputs=[lo, sy, dk.rhs, sol], device=dev)
 
-    split_launch(dev, n, threads, build)
+    size = (K / 32.0) ** 2
+    split_launch(dev, n, threads, build, n * size * _BUILD_SECONDS)
     # Warp's CPU tile kernels share one static scratch block: never launch them concurrently
     wp.launch_tiled(tile, dim=n, inputs=[0, dk.A, dk.rhs], block_dim=block_dim, device=dev)
-    split_launch(dev, n, threads, finish)
+    split_launch(dev, n, threads, finish, n * size * _FINISH_SECONDS)
     dk.solved = True
     return dk
 
