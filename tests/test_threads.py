@@ -57,3 +57,19 @@ def test_split_launch_covers_each_row_once(seconds):
     covered = np.concatenate([np.arange(a, b) for a, b in sorted(seen)])
     assert np.array_equal(covered, np.arange(1001))
     assert len(seen) == device.bands("cpu", 1001, 2, seconds)
+
+
+def test_every_banded_kernel_has_a_cost():
+    """Each kernel launched through ``_launch_banded`` has its work per item in ``HOST_SECONDS``."""
+    import re
+    from pathlib import Path
+
+    import tpsv.gpu
+    from tpsv.gpu.rasterise import HOST_SECONDS
+
+    launched = set()
+    for path in Path(tpsv.gpu.__file__).parent.glob("*.py"):
+        launched |= set(re.findall(r"_launch_banded\(\s*(\w+)\s*,", path.read_text()))
+    launched.discard("kernel")  # the definition's parameter
+    assert len(launched) >= 15
+    assert launched <= set(HOST_SECONDS), launched - set(HOST_SECONDS)
