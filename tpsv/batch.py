@@ -210,9 +210,9 @@ def run_one(command: str, input_path: str, output_path: str, options: Sequence[s
     """
     import click
 
-    from .cli import main
+    from .cli import command as cli_command, main
 
-    target = main.commands.get(command)
+    target = cli_command(command)
     if target is None:
         return _outcome(False, f"this tpsv has no {command!r} command", 0.0, None)
     wants_json = any(p.name == "as_json" for p in target.params)

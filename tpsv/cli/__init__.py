@@ -12,6 +12,7 @@ combinations and call library functions once.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import signal
 import sys
@@ -89,8 +90,33 @@ def _one_line(exc: BaseException) -> click.ClickException | None:
     return None
 
 
+#: Subcommand -> the module of ``tpsv.cli`` that defines it, imported when the command is first looked
+#: up: ``tpsv info`` or ``tpsv --version`` does not import what rendering, editing or benchmarking needs
+#: (SciPy's spatial package alone took a third of a second).
+COMMAND_MODULES = {
+    "batch": "batch", "bench": "bench", "crossmap": "edit", "deform": "edit", "export": "export", "info": "info",
+    "magnify": "render", "recolor": "edit", "render": "render", "segment": "segment", "stylize": "edit",
+    "vectorize": "vectorize",
+}
+
+
+def command(name: str) -> click.Command | None:
+    """The subcommand ``name`` of :data:`main` (its module imported on first use), or None."""
+    module = COMMAND_MODULES.get(name)
+    if module is not None and name not in main.commands:
+        importlib.import_module(f"{__name__}.{module}")
+    return main.commands.get(name)
+
+
 class TpsvGroup(click.Group):
-    """The group: subcommands run quietly, and every failure ends as one line."""
+    """The group: subcommands run quietly, and every failure ends as one line. Subcommands are
+    imported when looked up (:data:`COMMAND_MODULES`)."""
+
+    def list_commands(self, ctx):
+        return sorted(set(COMMAND_MODULES) | set(self.commands))
+
+    def get_command(self, ctx, cmd_name):
+        return command(cmd_name) if self is main else super().get_command(ctx, cmd_name)
 
     def invoke(self, ctx):
         try:
@@ -270,9 +296,3 @@ def run(argv: list[str] | None = None) -> None:
         stop.show()
         sys.exit(stop.exit_code)
 
-
-def _register() -> None:
-    from . import commands  # noqa: F401  (subcommands attach themselves to `main`)
-
-
-_register()

@@ -19,7 +19,7 @@ import signal
 import click
 from click.core import ParameterSource
 
-from . import Stopped, Terminated, main, progress_bar, say, settings
+from . import Stopped, Terminated, command, main, progress_bar, say, settings
 from .. import batch as engine
 
 #: Options of a command that ``batch`` sets itself or cannot pass on: the main
@@ -156,10 +156,10 @@ class BatchGroup(click.Group):
     """The subcommands of ``batch``, made from the commands of the same name when asked for."""
 
     def list_commands(self, ctx):
-        return [n for n in engine.EXTENSIONS if n in main.commands]
+        return [n for n in engine.EXTENSIONS if command(n) is not None]
 
     def get_command(self, ctx, cmd_name):
-        target = main.commands.get(cmd_name)
+        target = command(cmd_name)
         if cmd_name not in engine.EXTENSIONS or target is None:
             return None
         return _batch_command(cmd_name, target)
