@@ -233,3 +233,19 @@ def test_render_antialias_switch(tmp_path, tpsv_file):
         assert res.exit_code == 0, res.output
         assert out.read_bytes() == encode_png(render(model, scale=3, antialias=aa))
     assert (tmp_path / "--antialias.png").read_bytes() != (tmp_path / "--no-antialias.png").read_bytes()
+
+
+def test_a_subcommand_imports_only_its_own_module():
+    """``tpsv --version`` and ``tpsv info`` do not import the other subcommands (nor what they need)."""
+    code = ("import sys\n"
+            "from click.testing import CliRunner\n"
+            "from tpsv.cli import main\n"
+            "assert CliRunner().invoke(main, sys.argv[1:]).exit_code in (0, 1)\n"
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith('tpsv.cli.'))))\n")
+    for args, expect in ((["--version"], set()), (["info", "missing.tpsv"], {"tpsv.cli.info", "tpsv.cli.options"})):
+        r = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert set(r.stdout.split()) == expect, r.stdout
+    r = run("--help")
+    assert all(name in r.output for name in ("batch", "bench", "crossmap", "deform", "export", "info", "magnify",
+                                             "recolor", "render", "segment", "stylize", "vectorize"))
