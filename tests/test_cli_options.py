@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from tpsv.cli import main
+from tpsv.cli import edit as cli_edit
 from tpsv.cli import options as o
 
 
@@ -44,7 +45,7 @@ def parse(typ, text):
         (o.GRID, "0:dir/a:b.json", (0, "dir/a:b.json")),
         (o.SIZE, "50x30", (50, 30)),
         (o.SIZE, " 7 X 9 ", (7, 9)),
-        (o.TEMPLATE, "V", "V"),
+        (cli_edit.TEMPLATE, "V", "V"),
         (o.POSITIVE, "inf", float("inf")),
         (o.FINITE_NON_NEGATIVE, "0.25", 0.25),
         (o.FINITE, "-3", -3.0),

@@ -20,7 +20,7 @@ import click
 
 from . import main, say
 from .options import (AFFINE, COLOR, FINITE, GRID, IMAGE_HELP, MATRIX, MOVE, NON_NEGATIVE, PAIR, POINT, POSITIVE,
-                      STROKE_WIDTH, TEMPLATE, UNIT_INTERVAL, check_json_target, device_for, device_option,
+                      STROKE_WIDTH, UNIT_INTERVAL, check_json_target, device_for, device_option,
                       emit_json, image_format, image_options, json_option, output_option, render_options,
                       scale_option)
 from .outputs import check_targets, claim_outputs, encode_model, read_json
@@ -29,6 +29,9 @@ from .. import codec
 from ..edit import crossmap as cm, deform as df, recolor as rc, stylize as st
 from ..image import OutputFormat, encode_image
 from ..rendering.raster import output_size
+
+#: Template names of ``recolor --harmonize`` ('auto': the best fit).
+TEMPLATE = click.Choice(["auto", *rc.TEMPLATES])
 
 
 def stage_edit(out, model, output, render_path, scale, device, info: dict, t0: float,

@@ -19,12 +19,11 @@ import click
 
 from . import settings
 from .. import codec
-from ..edit.recolor import TEMPLATES
 from ..errors import TpsvError
 from ..fileio import display
 from ..gpu import resolve_device
 from ..image import OUTPUT_NAMES, OUTPUT_QUALITY, OutputFormat, output_format
-from ..rendering.raster import MAX_SIDE
+from ..rendering.limits import MAX_SIDE
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
@@ -213,8 +212,6 @@ MOVE = MoveType()
 AFFINE = AffineType()
 GRID = GridType()
 SIZE = SizeType()
-#: Template names of ``recolor --harmonize`` ('auto': the best fit).
-TEMPLATE = click.Choice(["auto", *TEMPLATES])
 #: > 0 (infinity passes: the library says why it does not fit).
 POSITIVE = BoundedFloat(lambda v: v > 0, "be positive")
 #: >= 0 (infinity passes).

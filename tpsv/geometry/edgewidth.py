@@ -29,7 +29,6 @@ where each border pixel's border is.
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from ..model import BlurMap
 
@@ -137,6 +136,9 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
 def _readings(rgb: np.ndarray, regions, index: np.ndarray):
     """The readings at points every pixel along the shared borders (module doc), or None without borders:
     ``(f, a, b, ok, placed, sigma_eff, offset)``."""
+    # (imported here: reading a file's blur map, `tpsv info`, needs none of SciPy's image filters)
+    from scipy import ndimage
+
     rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
     a, b, p0, p1 = _shared_edges(regions)
     if not len(a):

@@ -51,20 +51,7 @@ from ..gpu import resolve_device, warp
 from .borders import BorderMix
 from .pixelmap import BandMaps, no_tick, pixel_map
 
-#: Largest output side, in pixels.
-MAX_SIDE = 16384
-#: Largest output, in pixels.
-MAX_PIXELS = 1 << 28
-#: Peak memory (bytes) a render stays under whatever the output size (measured
-#: in ``tests/test_tiles.py``; the uncovered-pixel record gets a quarter of it).
-MEMORY_BUDGET = 1 << 30
-#: :func:`render` draws outputs of at most this many pixels in one piece (3840 x
-#: 2160 fits; about 45 bytes a pixel, host and device together), larger ones band by band.
-ONE_PIECE_PIXELS = 1 << 23
-#: Pixels per band of a banded render (:func:`render_bands`, :func:`render_png`).
-TILE_PIXELS = 1 << 22
-#: Largest output :func:`render` returns as one float32 array (12 bytes a pixel).
-MAX_ARRAY_PIXELS = 1 << 25
+from .limits import MAX_ARRAY_PIXELS, MAX_PIXELS, MAX_SIDE, MEMORY_BUDGET, ONE_PIECE_PIXELS, TILE_PIXELS
 #: Least pixels of coverage read at a time while preparing a banded render
 #: (``outline.GapFill``, about 16 bytes a pixel; otherwise a band's rows).
 _PREP_PIXELS = 1 << 18
