@@ -18,8 +18,9 @@ The blend of clamped kernels is still continuous (no seams) but only C0
 where a clamp is active; with ``clamp=False`` the result is the plain
 localised TPS (what the accuracy tests compare with ``RBFInterpolator``).
 
-On the CPU device large launches run in bands of rows (or of listed pixels)
-from a few host threads (:func:`tpsv.gpu.device.split_launch`).
+On the CPU device launches run in bands of rows (or of listed pixels) from
+a few host threads, as many as their work pays for (:func:`_launch_banded`,
+:data:`HOST_SECONDS`, :func:`tpsv.gpu.device.split_launch`).
 """
 
 from __future__ import annotations
