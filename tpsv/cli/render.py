@@ -23,7 +23,6 @@ from ..encode.alpha import has_transparency
 from ..errors import TpsvError
 from ..image import OutputFormat, encode_image, read_image, read_labels
 from ..png import png_chunks
-from ..rendering.magnify import magnify_model, magnify_raster, refine_steps
 from ..rendering.raster import (MAX_ARRAY_PIXELS, TILE_PIXELS, output_size, render as render_raster, render_bands,
                                 render_png)
 
@@ -110,6 +109,8 @@ def _render_image(out, model, output, size, scale, fmt, device, antialias: bool 
 def _magnify_file(ctx, out, model, output, factor, refine_iterations, fmt, device) -> dict:
     """``model`` magnified by ``factor`` and refined (:func:`magnify_model`), staged as ``output``; the
     summary. Without refinement steps it is rendered as ``tpsv render`` renders it (bands at any size)."""
+    from ..rendering.magnify import magnify_model, refine_steps
+
     W, H = output_size(model, scale=factor)
     steps = refine_steps((model.width, model.height), (W, H), refine_iterations)
     if not steps:
@@ -183,6 +184,9 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
     render's edges are sharpened under the same constraint
     (tpsv.rendering.magnify, .refine). `tpsv render` draws a .tpsv as it is.
     """
+    # (the dense fit's modules, imported here: `tpsv render` needs none of them)
+    from ..rendering.magnify import magnify_raster, refine_steps
+
     check_json_target(as_json, output)
     if is_tpsv(path):
         if labels or save_model:
