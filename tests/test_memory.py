@@ -71,6 +71,47 @@ def test_the_fit_design_is_built_within_twice_its_size(monkeypatch):
     assert peak < 2 * held, f"peak {peak / held:.2f} times the design"
 
 
+def test_the_fit_in_groups_of_regions_holds_less_and_fits_alike(monkeypatch):
+    """A dense model of four regions fitted a group of regions at a time (``group_pixels``): the fit's
+    peak (numpy's traced allocations, one host thread) falls with the largest group (measured 39 ->
+    24 MB; the table of every kernel's cardinal matrix, 10 MB here, is allocated whole, though only
+    the group's rows are written), and the colours are the one-group fit's to float rounding (the
+    groups sum a pixel's kernels in another order)."""
+    from tpsv.encode import fit
+    from tpsv.rendering.magnify import dense_model
+
+    monkeypatch.setattr(fit, "_threads", lambda: 1)
+    rgb = photo(192, 192)
+    labels = np.zeros((192, 192), np.int32)
+    labels[:, 96:] = 1
+    labels[96:] += 2
+    model, _ = dense_model(rgb, labels)
+    target = fit.fit_target(rgb, *fit.pixel_maps(model), 1)
+    peaks, fits = [], []
+    for most in (fit.GROUP_PIXELS, 96 * 96):
+        tracemalloc.start()
+        try:
+            fitted, report = fit.fit_colors(model, target=target, group_pixels=most)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+        fits.append((fitted.features.lab, report))
+    (one, r1), (four, r4) = fits
+    assert peaks[1] < 0.7 * peaks[0], peaks
+    assert np.abs(one.astype(np.float64) - four).max() < 0.01
+    assert r4.iterations == r1.iterations and r4.nnz == r1.nnz
+    assert abs(r4.mse - r1.mse) < 1e-6 * r1.mse
+
+
+def test_region_groups():
+    from tpsv.encode.fit import region_groups
+
+    groups = region_groups(np.array([5, 0, 3, 9, 2, 2, 0]), 8)
+    assert [g.tolist() for g in groups] == [[0, 2], [3], [4, 5]]  # 9 > 8 pixels: a group alone
+    assert [g.tolist() for g in region_groups(np.array([5, 0, 3]), 100)] == [[0, 2]]
+    assert [g.tolist() for g in region_groups(np.zeros(3, np.int64), 8)] == [[]]
+
+
 def test_row_bands_cover_the_rows():
     for h, w, px in ((7, 3, 5), (100, 1000, 1), (1, 1, 1 << 16), (300, 17, 1 << 10)):
         bands = list(row_bands(h, w, px))

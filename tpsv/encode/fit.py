@@ -54,7 +54,12 @@ entry and one batch of kernels per thread, and the conjugate gradients a few
 arrays of a colour per pixel. On a pixel lattice of 2 (the detail layer's
 base, the search) the fit is a quarter of that. Fitting on every pixel
 cannot be made cheaper by subsampling: on every second pixel the 2 px
-lattices of `--no-detail` qualities 85-100 lose 2.5-3.3 dB.
+lattices of `--no-detail` qualities 85-100 lose 2.5-3.3 dB. Past
+:data:`GROUP_PIXELS` fitted pixels the design is built and solved a group
+of regions at a time (:func:`region_groups`: the normal matrix is block
+diagonal by region, so each group's conjugate gradients are the whole fit's
+for its regions, to the rounding of the order in which a pixel's kernels
+are summed); the peak then follows the largest group, not the picture.
 """
 
 from __future__ import annotations
@@ -72,6 +77,10 @@ from ..threads import pool as host_pool
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
+#: Fitted pixels of one group of regions: the design is built and solved a group at a time, so the
+#: fit's peak follows the largest group (its design and conjugate gradients hold about 400 bytes a
+#: fitted pixel), not the whole picture. A region of more pixels is a group alone.
+GROUP_PIXELS = 1 << 21
 
 
 @dataclass
@@ -120,10 +129,10 @@ class FitTarget:
     rows : ndarray (n,) int64
         Flat pixel indices fitted (every ``sub``-th pixel in x and y, inside a region).
     region : ndarray (n,) int32
-    st : ndarray (n, 2) float64
-        ``(S, T)`` of each pixel in its region's patch.
-    lab : ndarray (n, 3) float64
-        Image colour (Lab).
+    st : ndarray (n, 2) float32
+        ``(S, T)`` of each pixel in its region's patch (the pixel map's own float32 values).
+    lab : ndarray (n, 3) float32
+        Image colour (Lab, as :func:`tpsv.color.srgb_to_lab` gives it; the fit reads both in float64).
     W : ndarray (n, 3, 3) float64
         ``J^T J`` with ``J`` the Jacobian of Lab -> sRGB at the image colour.
     sub : int
@@ -167,12 +176,13 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
         ok = at < len(rows)
         ok[ok] = rows[at[ok]] == np.asarray(replace[0])[ok]
         colours[at[ok]] = np.asarray(replace[1], np.float32)[ok]
-    lab = srgb_to_lab(colours[None])[0].astype(np.float64)
-    J = lab_to_srgb_jacobian(lab)
+    lab = srgb_to_lab(colours[None])[0]
+    J = lab_to_srgb_jacobian(lab.astype(np.float64))
     W = np.einsum("nij,nik->njk", J, J)
+    # (Lab and (S, T) kept in float32, as they come: the fit's float64 arithmetic reads the same values)
     return FitTarget(
-        rows=rows, region=reg.astype(np.int32), st=np.asarray(st).reshape(-1, 2)[rows].astype(np.float64),
-        lab=lab, W=W, sub=int(sub),
+        rows=rows, region=reg.astype(np.int32), st=np.asarray(st, np.float32).reshape(-1, 2)[rows],
+        lab=np.asarray(lab, np.float32), W=W, sub=int(sub),
     )
 
 
@@ -211,8 +221,10 @@ def _cardinal_chunk(Pk: np.ndarray, mk: np.ndarray, lamk: np.ndarray, K: int) ->
     return Zk
 
 
-def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
-    """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K) of ``dtype``.
+def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64, wanted: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Per kernel: local points (n_k, K, 2) and ``Z`` (n_k, K + 3, K) of ``dtype`` (zero for the kernels
+    that ``wanted``, a mask, leaves out: a fit of some regions solves only theirs).
 
     ``Z[k] @ h`` gives kernel ``k``'s coefficients ``[w_1..w_K, b0, b_u, b_v]``
     in its local frame for slot values ``h`` (inactive slots: zero rows and
@@ -232,6 +244,8 @@ def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64) -> tuple[np.ndarray, 
         return P, Z
     lam = tps.kernel_lambda(ks)
     ok = ~ks.degenerate
+    if wanted is not None:
+        ok &= wanted
     if ok.any():
         sel = np.nonzero(ok)[0]
         chunks = [sel[i:i + 128] for i in range(0, sel.size, 128)]  # a few MB of temporaries a thread
@@ -240,7 +254,7 @@ def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64) -> tuple[np.ndarray, 
             Z[c] = _cardinal_chunk(P[c], mask[c], lam[c], K)
 
         _pool_map(work, chunks)
-    for k in np.nonzero(~ok)[0]:
+    for k in np.nonzero(ks.degenerate if wanted is None else ks.degenerate & wanted)[0]:
         # affine fallback of tpsv.gpu.solve._affine_fallback: linear along anchors 0 -> 1, constant across
         m = int(ks.count[k])
         if m == 0:
@@ -398,10 +412,10 @@ def build_design(ks: tps.KernelSet, region: np.ndarray, st: np.ndarray) -> tuple
     bounds = np.searchsorted(e_k, np.arange(ks.n_kernels + 1))
     del e_k
     ne = e_pix.size
-    P, Zc = cardinal_matrices(ks, np.float32)  # Zc: (n_k, K + 3, K)
+    counts = np.diff(bounds)
+    P, Zc = cardinal_matrices(ks, np.float32, counts > 0)  # Zc: (n_k, K + 3, K), the kernels with points
     P32 = P.astype(np.float32)
     del P
-    counts = np.diff(bounds)
     # kernels in groups of similar entry counts, each group one padded batch
     order_k = np.argsort(counts, kind="stable")
     order_k = order_k[counts[order_k] > 0]
@@ -466,6 +480,7 @@ def fit_colors(
     maps: tuple[np.ndarray, np.ndarray] | None = None,
     kernels: tps.KernelSet | None = None,
     max_nnz: int = MAX_NNZ,
+    group_pixels: int | None = None,
 ):
     """Feature colours fitted by least squares to ``rgb`` (see the module doc).
 
@@ -488,6 +503,10 @@ def fit_colors(
         The pixel maps of :func:`pixel_maps`, when the caller has them.
     kernels : KernelSet, optional
         ``tps.group_kernels(model)`` when the caller has it.
+    group_pixels : int, optional
+        Fitted pixels of one group of regions, at most (default
+        :data:`GROUP_PIXELS`): the design is built and solved one group at a
+        time (:func:`region_groups`).
 
     Returns
     -------
@@ -499,6 +518,7 @@ def fit_colors(
         clamp, no 8-bit rounding).
     """
     t0 = time.perf_counter()
+    group_pixels = GROUP_PIXELS if group_pixels is None else int(group_pixels)
     F = len(model.features)
     if F == 0:
         return model, FitReport(0, 0.0, 0, 0.0, 0.0, 1, float("nan"), None)
@@ -507,26 +527,72 @@ def fit_colors(
         target = _target_for(model, rgb, ks, device, maps, max_nnz)
     # pixels of regions without kernels are left out (the fill colour is no feature's)
     sel = ks.grid[np.maximum(target.region, 0), 0] > 0
-    # (a copy of the target's per-pixel arrays only where some pixels are left out: they are
-    # the largest arrays of the fit after its design)
-    pick = (lambda a: a) if sel.all() else (lambda a, sel=np.nonzero(sel)[0]: a[sel])
-    des, nnz = build_design(ks, pick(target.region), pick(target.st))
-    lab_t = pick(target.lab)
+    n_fit = int(np.count_nonzero(sel))
     h0 = ks.lab.astype(np.float64).copy()
-    normal = _Normal(des, pick(target.W), float(mu) * max(des.n_pix, 1) / max(F, 1))
+    mu_n = float(mu) * max(n_fit, 1) / max(F, 1)
     freg = np.asarray(model.features.region, np.int64)
-    X, it, res0, res1 = _region_cg(normal, normal.rhs(lab_t, h0), normal.jacobi(), h0, freg, iterations, tol)
     used = np.zeros(F, bool)
     used[ks.index[ks.index >= 0]] = True
-    X[~used] = h0[~used]
-    X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
-    X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
-    res = des.forward(X) - lab_t
-    mse = float((res * normal.wmul(res)).sum() / (3.0 * max(res.shape[0], 1)))
+    X = h0.copy()
+    it, nnz, err, norms = 0, 0, 0.0, []
+    groups = region_groups(np.bincount(target.region[sel], minlength=ks.grid.shape[0]), group_pixels)
+    for g in groups:
+        if len(groups) == 1:
+            # (a copy of the target's per-pixel arrays only where some pixels are left out: they are
+            # the largest arrays of the fit after its design)
+            pick = (lambda a: a) if sel.all() else (lambda a, sel=np.nonzero(sel)[0]: a[sel])
+        else:
+            pick = (lambda a, at=np.nonzero(sel & np.isin(target.region, g))[0]: a[at])
+        des, n = build_design(ks, pick(target.region), pick(target.st))
+        lab_t = pick(target.lab)
+        normal = _Normal(des, pick(target.W), mu_n)
+        # the other groups' features have no pixel here: no residual, they stay as they are
+        Xg, it_g, r0, r1 = _region_cg(normal, normal.rhs(lab_t, h0), normal.jacobi(), h0, freg, iterations, tol)
+        mine = np.isin(freg, g)
+        X[mine] = Xg[mine]
+        X[~used] = h0[~used]
+        X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
+        X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
+        res = des.forward(X) - lab_t
+        err += float((res * normal.wmul(res)).sum())
+        it, nnz = max(it, it_g), nnz + n
+        norms.append((r0, r1))
+        del des, normal, res, lab_t, Xg
+    mse = err / (3.0 * max(n_fit, 1))
     # features the grouping merged away (duplicates) take their representative's colour
     lab = tps.Duplicates.of_features(model.features).spread(X.astype(np.float32))
     out = replace(model, features=replace(model.features, lab=lab))
+    # the groups' preconditioned residual norms, as one (their regions' sums of squares add up)
+    res0, res1 = norms[0] if len(norms) == 1 else np.sqrt(np.square(norms).sum(axis=0)).tolist()
     return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, target.sub, mse, ks)
+
+
+def region_groups(pixels: np.ndarray, most: int) -> list[np.ndarray]:
+    """Regions in groups of consecutive ids holding at most ``most`` fitted pixels each (a region of more
+    is a group alone); regions without pixels are in none.
+
+    Parameters
+    ----------
+    pixels : ndarray (R,) int
+        Fitted pixels of each region.
+    most : int
+
+    Returns
+    -------
+    list of ndarray of int
+        At least one group (empty when no region has a pixel).
+    """
+    groups, cur, size = [], [], 0
+    for r in np.flatnonzero(pixels):
+        c = int(pixels[r])
+        if cur and size + c > most:
+            groups.append(np.array(cur))
+            cur, size = [], 0
+        cur.append(int(r))
+        size += c
+    if cur:
+        groups.append(np.array(cur))
+    return groups or [np.zeros(0, np.int64)]
 
 
 def _target_for(model, rgb: np.ndarray, ks: tps.KernelSet, device: str, maps, max_nnz: int) -> FitTarget:
