@@ -101,6 +101,16 @@ def test_the_fit_in_groups_of_regions_holds_less_and_fits_alike(monkeypatch):
     assert np.abs(one.astype(np.float64) - four).max() < 0.01
     assert r4.iterations == r1.iterations and r4.nnz == r1.nnz
     assert abs(r4.mse - r1.mse) < 1e-6 * r1.mse
+    # a picture past GROUP_PIXELS keeps no whole target: each group's is made from the image when fitted,
+    # the same values
+    index, st = fit.pixel_maps(model)
+    source = fit.TargetSource(rgb, index, st, 1)
+    assert np.array_equal(source.region, target.region)
+    part = source.part([1, 2])
+    both = np.isin(target.region, [1, 2])
+    assert all(np.array_equal(getattr(part, f), getattr(target, f)[both]) for f in ("rows", "region", "st", "lab", "W"))
+    again, r = fit.fit_colors(model, target=source, group_pixels=96 * 96)
+    assert np.array_equal(again.features.lab, four) and r.mse == r4.mse
 
 
 def test_region_groups():

@@ -59,7 +59,9 @@ lattices of `--no-detail` qualities 85-100 lose 2.5-3.3 dB. Past
 of regions at a time (:func:`region_groups`: the normal matrix is block
 diagonal by region, so each group's conjugate gradients are the whole fit's
 for its regions, to the rounding of the order in which a pixel's kernels
-are summed); the peak then follows the largest group, not the picture.
+are summed), and its target is made from the image when the group is
+fitted (:class:`TargetSource`, :func:`target_for_fit`); the peak then
+follows the largest group, not the picture.
 """
 
 from __future__ import annotations
@@ -146,8 +148,24 @@ class FitTarget:
     sub: int
 
 
+def _fitted(index: np.ndarray, sub: int, skip=None, regions=None) -> tuple[np.ndarray, np.ndarray]:
+    """Flat index and region of every fitted pixel: every ``sub``-th one in a region, less ``skip``
+    (and, with ``regions``, in one of those)."""
+    h, w = index.shape
+    ys, xs = np.mgrid[0:h:sub, 0:w:sub]
+    rows = (ys * w + xs).ravel()
+    del ys, xs
+    reg = np.asarray(index).ravel()[rows]
+    keep = reg >= 0
+    if skip is not None and len(skip):
+        keep &= ~np.isin(rows, np.asarray(skip))
+    if regions is not None:
+        keep &= np.isin(reg, regions)
+    return rows[keep], reg[keep]
+
+
 def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1, skip=None,
-               replace=None) -> FitTarget:
+               replace=None, regions=None) -> FitTarget:
     """A :class:`FitTarget` from the image and the pixel maps at scale 1 (``pixel_maps``).
 
     ``skip``: flat pixel indices left out of the fit. ``replace``: ``(pixels,
@@ -157,19 +175,13 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
     image there, a region's TPS would reach for its neighbour's colour and
     bleed it into its own fill; left out, nothing holds the TPS up to its
     outline, and a magnified render shows whatever it does there.
+    ``regions``: only the pixels of these regions (each pixel's values are
+    the same as in the whole target).
     """
     rgb = np.asarray(rgb)
     if rgb.dtype == np.uint8:
         rgb = rgb.astype(np.float32) / 255.0
-    h, w = index.shape
-    ys, xs = np.mgrid[0:h:sub, 0:w:sub]
-    rows = (ys * w + xs).ravel()
-    reg = np.asarray(index).ravel()[rows]
-    keep = reg >= 0
-    if skip is not None and len(skip):
-        keep &= ~np.isin(rows, np.asarray(skip))
-    rows = rows[keep]
-    reg = reg[keep]
+    rows, reg = _fitted(index, sub, skip, regions)
     colours = np.asarray(rgb, np.float32)[..., :3].reshape(-1, 3)[rows]
     if replace is not None and len(replace[0]):
         at = np.searchsorted(rows, np.asarray(replace[0]))
@@ -184,6 +196,38 @@ def fit_target(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1,
         rows=rows, region=reg.astype(np.int32), st=np.asarray(st, np.float32).reshape(-1, 2)[rows],
         lab=np.asarray(lab, np.float32), W=W, sub=int(sub),
     )
+
+
+@dataclass
+class TargetSource:
+    """The :class:`FitTarget` of a picture past :data:`GROUP_PIXELS` fitted pixels, made a group of
+    regions at a time by :func:`fit_colors` (so the whole target, 104 bytes a pixel, is never held):
+    :func:`fit_target`'s arguments, and the region of every fitted pixel to make the groups from."""
+
+    rgb: np.ndarray
+    index: np.ndarray
+    st: np.ndarray
+    sub: int
+    skip: object = None
+    replace: object = None
+    region: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.region is None:
+            self.region = _fitted(self.index, self.sub, self.skip)[1].astype(np.int32)
+
+    def part(self, regions) -> FitTarget:
+        """The target of the pixels of ``regions``."""
+        return fit_target(self.rgb, self.index, self.st, self.sub, self.skip, self.replace, regions=regions)
+
+
+def target_for_fit(rgb: np.ndarray, index: np.ndarray, st: np.ndarray, sub: int = 1, skip=None, replace=None):
+    """:func:`fit_target`, or past :data:`GROUP_PIXELS` fitted pixels a :class:`TargetSource` that
+    :func:`fit_colors` makes a group at a time (either can be kept and fitted to again)."""
+    h, w = index.shape
+    if -(-h // sub) * -(-w // sub) <= GROUP_PIXELS:
+        return fit_target(rgb, index, st, sub, skip, replace)
+    return TargetSource(rgb, index, st, int(sub), skip, replace)
 
 
 def _phi_into(d2: np.ndarray, out: np.ndarray) -> None:
@@ -489,9 +533,10 @@ def fit_colors(
     model : Model
         Positions are kept; colours are the starting point.
     rgb : ndarray (H, W, 3) float in [0, 1], the model's size (or give ``target``).
-    target : FitTarget, optional
+    target : FitTarget or TargetSource, optional
         The image at the fitted pixels, when the caller has it (it depends on
-        the image and the regions only, so a search computes it once).
+        the image and the regions only, so a search computes it once); a
+        :class:`TargetSource` is made a group of regions at a time.
     iterations : int
         Conjugate-gradient iterations at most (6 reach within 0.05 dB of 30 on
         the samples: the start, the sampled colours, is close).
@@ -536,8 +581,13 @@ def fit_colors(
     X = h0.copy()
     it, nnz, err, norms = 0, 0, 0.0, []
     groups = region_groups(np.bincount(target.region[sel], minlength=ks.grid.shape[0]), group_pixels)
+    source = target if isinstance(target, TargetSource) else None
     for g in groups:
-        if len(groups) == 1:
+        if source is not None:
+            # the group's pixels alone, made now (regions without kernels are in no group)
+            target = source.part(g)
+            pick = (lambda a: a)
+        elif len(groups) == 1:
             # (a copy of the target's per-pixel arrays only where some pixels are left out: they are
             # the largest arrays of the fit after its design)
             pick = (lambda a: a) if sel.all() else (lambda a, sel=np.nonzero(sel)[0]: a[sel])
@@ -558,13 +608,16 @@ def fit_colors(
         it, nnz = max(it, it_g), nnz + n
         norms.append((r0, r1))
         del des, normal, res, lab_t, Xg
+        if source is not None:
+            del target
     mse = err / (3.0 * max(n_fit, 1))
     # features the grouping merged away (duplicates) take their representative's colour
     lab = tps.Duplicates.of_features(model.features).spread(X.astype(np.float32))
     out = replace(model, features=replace(model.features, lab=lab))
     # the groups' preconditioned residual norms, as one (their regions' sums of squares add up)
     res0, res1 = norms[0] if len(norms) == 1 else np.sqrt(np.square(norms).sum(axis=0)).tolist()
-    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, target.sub, mse, ks)
+    sub = source.sub if source is not None else target.sub
+    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, sub, mse, ks)
 
 
 def region_groups(pixels: np.ndarray, most: int) -> list[np.ndarray]:

@@ -98,7 +98,7 @@ from ..rendering.raster import render, shade
 from . import search as selection
 from .alpha import flatten, straight, transparent_mask, with_transparent_label
 from .features import DEDUP_PX, LATTICE_PX, FeatureExtractor, FeatureSet, LatticeGradation, drop_near
-from .fit import fit_colors, fit_target
+from .fit import fit_colors, target_for_fit
 from .memory import give_back
 
 #: Feature schemes (see the module doc).
@@ -209,11 +209,13 @@ class Geometry:
         return hit[1]
 
     def fit_target(self, rgb: np.ndarray, sub: int = 1):
-        """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel (cached per image and ``sub``)."""
+        """The :class:`tpsv.encode.fit.FitTarget` of ``rgb`` on every ``sub``-th pixel, or past
+        ``fit.GROUP_PIXELS`` pixels its :class:`~tpsv.encode.fit.TargetSource` (cached per image and ``sub``)."""
         def make():
             mixed = self.mixed_pixels()
             colours, ok = own_side_colours(rgb, self.index, mixed, near=self.border_mix().pixels)
-            return fit_target(rgb, self.index, self.pixel_st(), sub, skip=mixed[~ok], replace=(mixed[ok], colours[ok]))
+            return target_for_fit(rgb, self.index, self.pixel_st(), sub, skip=mixed[~ok],
+                                  replace=(mixed[ok], colours[ok]))
 
         return self._cached("fit", rgb, (int(sub),), make)
 
