@@ -581,21 +581,20 @@ def fit_colors(
     X = h0.copy()
     it, nnz, err, norms = 0, 0, 0.0, []
     groups = region_groups(np.bincount(target.region[sel], minlength=ks.grid.shape[0]), group_pixels)
-    source = target if isinstance(target, TargetSource) else None
     for g in groups:
-        if source is not None:
+        part = target
+        if isinstance(target, TargetSource):
             # the group's pixels alone, made now (regions without kernels are in no group)
-            target = source.part(g)
-            pick = (lambda a: a)
+            part, pick = target.part(g), (lambda a: a)
         elif len(groups) == 1:
             # (a copy of the target's per-pixel arrays only where some pixels are left out: they are
             # the largest arrays of the fit after its design)
             pick = (lambda a: a) if sel.all() else (lambda a, sel=np.nonzero(sel)[0]: a[sel])
         else:
             pick = (lambda a, at=np.nonzero(sel & np.isin(target.region, g))[0]: a[at])
-        des, n = build_design(ks, pick(target.region), pick(target.st))
-        lab_t = pick(target.lab)
-        normal = _Normal(des, pick(target.W), mu_n)
+        des, n = build_design(ks, pick(part.region), pick(part.st))
+        lab_t = pick(part.lab)
+        normal = _Normal(des, pick(part.W), mu_n)
         # the other groups' features have no pixel here: no residual, they stay as they are
         Xg, it_g, r0, r1 = _region_cg(normal, normal.rhs(lab_t, h0), normal.jacobi(), h0, freg, iterations, tol)
         mine = np.isin(freg, g)
@@ -607,17 +606,14 @@ def fit_colors(
         err += float((res * normal.wmul(res)).sum())
         it, nnz = max(it, it_g), nnz + n
         norms.append((r0, r1))
-        del des, normal, res, lab_t, Xg
-        if source is not None:
-            del target
+        del des, normal, res, lab_t, Xg, part
     mse = err / (3.0 * max(n_fit, 1))
     # features the grouping merged away (duplicates) take their representative's colour
     lab = tps.Duplicates.of_features(model.features).spread(X.astype(np.float32))
     out = replace(model, features=replace(model.features, lab=lab))
     # the groups' preconditioned residual norms, as one (their regions' sums of squares add up)
     res0, res1 = norms[0] if len(norms) == 1 else np.sqrt(np.square(norms).sum(axis=0)).tolist()
-    sub = source.sub if source is not None else target.sub
-    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, sub, mse, ks)
+    return out, FitReport(it, time.perf_counter() - t0, int(nnz), res0, res1, target.sub, mse, ks)
 
 
 def region_groups(pixels: np.ndarray, most: int) -> list[np.ndarray]:

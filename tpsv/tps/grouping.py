@@ -312,11 +312,11 @@ def _cells(st, reg, keep, scale, K, cf, min_cell_px, max_refine):
     small = (n > 0) & (n <= K)
     grid[small, 0] = grid[small, 1] = 1
     blocks = {}
-    if (n > K).any():
+    for r in np.flatnonzero(n > K):
         # (imported here: SciPy's spatial package takes a third of a second, which a model whose regions
         # each fit one kernel, the default files' vector part, need not pay)
         from scipy.spatial import cKDTree
-    for r in np.flatnonzero(n > K):
+
         fi = order[bounds[r] : bounds[r + 1]]
         sx, sy = scale[r]
         xy = st[fi] * (sx, sy)
