@@ -48,6 +48,21 @@ def test_recolor_rebuilds_only_touched_kernels(model):
         assert np.array_equal(getattr(full, name), getattr(live.kernels, name)), name
 
 
+def test_timed_updates_split_their_stages_and_draw_the_same(model):
+    """A timed LiveImage reports each stage of an update; an untimed one (the default: its stages are not
+    synchronised apart) only the total, and its pictures are the same."""
+    new = deform.affine(model, PANEL, [[1, 0, 3], [0, 1, 2]])
+    plain, timed = LiveImage(model), LiveImage(model, timed=True)
+    a, b = plain.update(new), timed.update(new)
+    assert set(a.seconds) == {"total"} and a.seconds["total"] > 0
+    stages = {"geometry", "group", "match", "solve", "rasterise", "borders", "detail"}
+    assert set(b.seconds) == stages | {"total"}
+    assert sum(b.seconds[k] for k in stages) <= b.seconds["total"]
+    assert (a.solved, a.pixels, a.geometry) == (b.solved, b.pixels, b.geometry)
+    assert np.array_equal(plain.image, timed.image)
+    assert np.array_equal(plain.image, render(new))
+
+
 def test_noop_update_rebuilds_nothing(model):
     live = LiveImage(model)
     before = live.image

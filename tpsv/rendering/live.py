@@ -60,7 +60,7 @@ from ..gpu.coverage import DeviceBorders
 from ..gpu.patchmap import PatchSet
 from ..gpu.rasterise import changed_pixels, rasterise_dirty
 from ..tps.grouping import pixel_scales
-from .pixelmap import draw_order, pixel_map
+from .pixelmap import draw_order, no_tick, pixel_map
 from .raster import ONE_PIECE_PIXELS, Stopwatch, border_st_device, output_size
 
 
@@ -82,8 +82,10 @@ class UpdateStats:
     geometry : bool
         Whether the region and ``(S, T)`` maps were recomputed.
     seconds : dict
-        Wall time per stage (``geometry``, ``group``, ``match``, ``solve``,
-        ``rasterise``, ``total``), with a device synchronisation at the end.
+        Wall time of the update to a device synchronisation at its end
+        (``total``) and, when the :class:`LiveImage` is ``timed``, of each
+        stage (``geometry``, ``group``, ``match``, ``solve``, ``rasterise``,
+        ``borders``, ``detail``), each ending with one.
     """
 
     kernels: int
@@ -183,6 +185,11 @@ class LiveImage:
         Host threads for CPU launches.
     clamp : bool
         Clamp each kernel to its features' Lab range (as ``render``).
+    timed : bool
+        Time each stage of an update (:attr:`UpdateStats.seconds`): each then
+        ends with a device synchronisation, so the host no longer queues the
+        next stage's launches while the device works, and an update takes
+        longer. Untimed, an update synchronises once, at its end.
 
     Attributes
     ----------
@@ -201,8 +208,10 @@ class LiveImage:
     >>> img = live.image                                          # doctest: +SKIP
     """
 
-    def __init__(self, model, width=None, height=None, scale=None, device: str = "cpu", threads=None, clamp: bool = True):
+    def __init__(self, model, width=None, height=None, scale=None, device: str = "cpu", threads=None, clamp: bool = True,
+                 timed: bool = False):
         self.device = resolve_device(device)
+        self.timed = bool(timed)
         self._size_args = (width, height, scale)
         self.threads = threads
         self.clamp = bool(clamp)
@@ -242,7 +251,7 @@ class LiveImage:
 
     def _rebuild(self, model, full: bool) -> UpdateStats:
         """Steps 1-4 of the module docstring for ``model`` (everything when ``full``)."""
-        watch = Stopwatch(self.device)
+        watch = Stopwatch(self.device) if self.timed else no_tick
         t_start = time.perf_counter()
         old = self.model
         if old is not None and (old.width, old.height) != (model.width, model.height):
@@ -268,7 +277,9 @@ class LiveImage:
         watch("borders")
         self._add_detail(model)
         watch("detail")
-        times = dict(watch.times, total=time.perf_counter() - t_start)
+        if not self.timed:
+            warp().synchronize_device(self.device)
+        times = dict(getattr(watch, "times", {}), total=time.perf_counter() - t_start)
         self.model, self.kernels, self._dk = model, ks, dk
         return UpdateStats(kernels=ks.n_kernels, solved=solved, pixels=pixels, regrouped=regrouped,
                            geometry=geometry, seconds=times)
