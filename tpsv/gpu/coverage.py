@@ -260,7 +260,7 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
              index: wp.array2d(dtype=wp.int32), iy0: int, mine: int, excl: int, free2: wp.float64,
              masks: wp.array2d(dtype=wp.uint64), mrow0: int, two: wp.uint64, use_mask: int):
     """Distance, foot and vector of the piece nearest pixel ``(x, y)``'s centre, if nearer than ``limit`` (else
-    ``limit``).
+    ``limit``), and 1 when the search read every piece within ``limit`` and none was (else 0).
 
     A piece farther than ``sqrt(free2)`` counts only with another region
     than ``mine`` and ``excl`` just beyond it (:func:`_beyond`;
@@ -289,6 +289,7 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     vy = wp.float64(0.0)
     visited = int(0)
     rejected = int(0)
+    seen = int(0)
     for j in range(rows):
         if (wp.min(_gap(py, cy - j, cell), _gap(py, cy + j, cell)) - slack >= best or visited >= _MAX_VISIT
                 or rejected >= _MAX_REJECTED):
@@ -323,7 +324,12 @@ def _nearest(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                                 vx, vy, found, visited, rejected, index, iy0, mine, excl, free2)
                 if found != 0:
                     best = wp.sqrt(best2)
-    return best, fx, fy, vx, vy
+                    seen = 1
+    # (a piece within the limit is either taken or rejected; none was, and no cap cut the search short)
+    clear = int(0)
+    if seen == 0 and rejected == 0 and visited < _MAX_VISIT:
+        clear = 1
+    return best, fx, fy, vx, vy, clear
 
 
 @wp.func
@@ -645,12 +651,12 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
     free2 = wp.float64(-1.0)
     if _next_to_other(index, y - iy0, x, mine) != 0:
         free2 = wp.float64(0.5625)
-    dist, fx, fy, vx, vy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1, free2,
-                                    masks, mrow0, wp.uint64(0), 0)
-    if dist >= lim:
-        # no border piece: the nearest piece
-        dist, fx, fy, vx, vy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1,
-                                        wp.float64(1e300), masks, mrow0, wp.uint64(0), 0)
+    dist, fx, fy, vx, vy, clear = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine, -1,
+                                           free2, masks, mrow0, wp.uint64(0), 0)
+    if dist >= lim and clear == 0:
+        # no border piece: the nearest piece (none when no piece at all lay within the limit: most candidates)
+        dist, fx, fy, vx, vy, clear = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim, index, iy0, mine,
+                                               -1, wp.float64(1e300), masks, mrow0, wp.uint64(0), 0)
     if dist < lim:
         o, tx, ty = _across(index, iy0, x, y, mine, px, py, fx, fy, dist, vx, vy)
         if o >= 0:
@@ -677,8 +683,8 @@ def _measure(a: wp.array(dtype=wp.vec2d), d: wp.array(dtype=wp.vec2d), start: wp
                     m = near[mr, x / cell]
                     if (m & two) == m:
                         lim2 = wp.float64(0.0)  # no third region within the reach of any cell's pieces
-                dist2, gx, gy, ux, uy = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0, mine, o,
-                                                 wp.float64(-1.0), masks, mrow0, two, 1)
+                dist2, gx, gy, ux, uy, clear = _nearest(a, d, start, gw, gh, cell, slack, rows, x, y, lim2, index, iy0,
+                                                        mine, o, wp.float64(-1.0), masks, mrow0, two, 1)
                 if dist2 < lim2:
                     r2 = _beyond(index, iy0, px, py, gx, gy, dist2)
                     hx, hy = _beyond_point(px, py, gx, gy, dist2)
