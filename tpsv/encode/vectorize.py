@@ -698,7 +698,8 @@ class Candidates:
             if len(model.features):
                 model, report = fit_colors(model, target=self.geometry.fit_target(self.rgb, sub), iterations=its)
                 ks = report.kernels
-                give_back()  # the fit's design, before the render's own arrays (tpsv.encode.memory)
+                if final:
+                    give_back()  # the fit's design, before the render's own arrays (tpsv.encode.memory)
             self._fits[key] = (model.features.lab, ks)
         return self._fits[key]
 
