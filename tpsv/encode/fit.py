@@ -646,6 +646,8 @@ def fit_colors(
             # (a strip's error counts its core pixels, the later strips' features still unfitted)
             res = des.forward(X) - lab_t
             err += float((res * normal.wmul(res))[counted].sum())
+            # (strips count their margins' coefficients and residuals again: the report's nnz and norms are
+            # what the fit worked through)
             it, nnz = max(it, it_g), nnz + n
             norms.append((r0, r1))
             del des, normal, res, lab_t, Xg, part, st_t
