@@ -176,10 +176,12 @@ def test_scaling_table_measures_each_size_in_a_child(small_rgb):
     from tpsv.bench.scaling import scaling_table, scaling_text
 
     t = scaling_table(small_rgb, sizes=(48, 64))
-    assert [r["size"] for r in t["rows"]] == [48, 64]
+    assert [(r["size"], r["mode"]) for r in t["rows"]] == [(48, "default"), (48, "no-detail"), (64, "default"),
+                                                           (64, "no-detail")]
     for r in t["rows"]:
         assert r["seconds"] > 0 and r["file_bytes"] > 0 and r["psnr"] > 15
         # a child's peak holds the interpreter, the libraries and Warp at least
         assert r["peak_rss_bytes"] >= 0.5 * t["baseline_rss_bytes"] > 10 * 2**20
         assert r["bytes_per_pixel"] == r["peak_rss_bytes"] / r["pixels"]
-    assert "64x64" in scaling_text(t).replace(" ", "")
+    text = scaling_text(t)
+    assert "64x64" in text.replace(" ", "") and "no-detail" in text

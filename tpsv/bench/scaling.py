@@ -1,8 +1,10 @@
 """How vectorize scales with the photo: seconds and peak memory at growing sizes.
 
-Each size runs ``tpsv vectorize`` at the default quality in a child process
-(its own interpreter, so its peak resident memory is its own: ``ru_maxrss``
-of the child from ``os.wait4``), on the first input resized to that size.
+Each size runs ``tpsv vectorize`` in a child process (its own interpreter,
+so its peak resident memory is its own: ``ru_maxrss`` of the child from
+``os.wait4``), on the first input resized to that size: at the default
+quality, and as the pure vector image (``--no-detail``, whose colour fit on
+every pixel sets the peak: ``tpsv.encode.fit``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import numpy as np
 
 #: The sizes of ``tpsv bench --scaling`` (issue 12: 512^2, 1024^2, 2048^2).
 SIZES = (512, 1024, 2048)
+#: The encodings each size runs: name and ``vectorize`` options.
+MODES = (("default", ()), ("no-detail", ("--no-detail",)))
 
 
 def _child(args: list[str]) -> tuple[int, str, str, int]:
@@ -32,8 +36,8 @@ def _child(args: list[str]) -> tuple[int, str, str, int]:
         return proc.returncode, out.read().decode(), err.read().decode(), usage.ru_maxrss * 1024
 
 
-def scaling_table(rgb: np.ndarray, sizes=SIZES, device: str = "cpu") -> dict:
-    """Vectorize ``rgb`` resized to each ``size x size``; seconds, peak RSS, bytes per pixel.
+def scaling_table(rgb: np.ndarray, sizes=SIZES, device: str = "cpu", modes=MODES) -> dict:
+    """Vectorize ``rgb`` resized to each ``size x size`` in each of ``modes``; seconds, peak RSS, bytes per pixel.
 
     Parameters
     ----------
@@ -41,14 +45,16 @@ def scaling_table(rgb: np.ndarray, sizes=SIZES, device: str = "cpu") -> dict:
     sizes : iterable of int
     device : str
         Warp device of the child's ``vectorize``.
+    modes : iterable of (name, options)
+        ``vectorize`` options of each row of a size (:data:`MODES`).
 
     Returns
     -------
     dict
-        ``{"device", "rows": [{"size", "pixels", "seconds", "peak_rss_bytes",
-        "bytes_per_pixel", "file_bytes", "psnr"}], "baseline_rss_bytes"}``;
-        the baseline is the peak of a child that only imports the package
-        and loads Warp (the fixed part of every row).
+        ``{"device", "rows": [{"size", "mode", "pixels", "seconds",
+        "peak_rss_bytes", "bytes_per_pixel", "file_bytes", "psnr"}],
+        "baseline_rss_bytes"}``; the baseline is the peak of a child that
+        only imports the package and loads Warp (the fixed part of every row).
     """
     src = cv2.cvtColor((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR)
     rows = []
@@ -57,30 +63,35 @@ def scaling_table(rgb: np.ndarray, sizes=SIZES, device: str = "cpu") -> dict:
         for n in sizes:
             photo = str(Path(tmp) / f"photo{n}.png")
             cv2.imwrite(photo, cv2.resize(src, (int(n), int(n)), interpolation=cv2.INTER_CUBIC))
-            status, out, err, rss = _child(cmd + [photo, "-o", str(Path(tmp) / f"photo{n}.tpsv"), "--json"])
-            if status != 0:
-                rows.append({"size": int(n), "error": err.strip().splitlines()[-1] if err.strip() else str(status)})
-                continue
-            s = json.loads(out)
-            rows.append({"size": int(n), "pixels": int(n) * int(n), "seconds": s["seconds"], "peak_rss_bytes": rss,
-                         "bytes_per_pixel": rss / (int(n) * int(n)), "file_bytes": s["bytes"], "psnr": s["psnr"]})
+            for mode, options in modes:
+                status, out, err, rss = _child(cmd + [photo, "-o", str(Path(tmp) / f"photo{n}.tpsv"), "--json",
+                                                      *options])
+                if status != 0:
+                    rows.append({"size": int(n), "mode": mode,
+                                 "error": err.strip().splitlines()[-1] if err.strip() else str(status)})
+                    continue
+                s = json.loads(out)
+                rows.append({"size": int(n), "mode": mode, "pixels": int(n) * int(n), "seconds": s["seconds"],
+                             "peak_rss_bytes": rss, "bytes_per_pixel": rss / (int(n) * int(n)),
+                             "file_bytes": s["bytes"], "psnr": s["psnr"]})
         base = _child([sys.executable, "-c", "import tpsv.cli, tpsv.gpu; tpsv.gpu.warp()"])[3]
     return {"device": device, "rows": rows, "baseline_rss_bytes": base}
 
 
 def scaling_text(table: dict) -> str:
     """The printed scaling table."""
-    out = [f"Vectorize at the default quality by size on {table['device']} (a child process each; "
-           f"peak RSS, its bytes per input pixel)",
-           f"{'size':>11}{'seconds':>9}{'peak MB':>9}{'B/px':>7}{'bytes':>9}{'PSNR':>7}"]
+    out = [f"Vectorize by size on {table['device']}, at the default quality and --no-detail (a child process "
+           f"each; peak RSS, its bytes per input pixel)",
+           f"{'size':>11}{'mode':>11}{'seconds':>9}{'peak MB':>9}{'B/px':>7}{'bytes':>9}{'PSNR':>7}"]
     for r in table["rows"]:
+        head = f"{r['size']:>5}x{r['size']:<5}{r.get('mode', 'default'):>11}"
         if "error" in r:
-            out.append(f"{r['size']:>5}x{r['size']:<5} failed: {r['error']}")
+            out.append(f"{head} failed: {r['error']}")
             continue
-        out.append(f"{r['size']:>5}x{r['size']:<5}{r['seconds']:>9.1f}{r['peak_rss_bytes'] / 2**20:>9.0f}"
+        out.append(f"{head}{r['seconds']:>9.1f}{r['peak_rss_bytes'] / 2**20:>9.0f}"
                    f"{r['bytes_per_pixel']:>7.0f}{r['file_bytes']:>9}{r['psnr']:>7.2f}")
     out.append(f"  fixed part (interpreter, libraries, Warp loaded): {table['baseline_rss_bytes'] / 2**20:.0f} MB")
     return "\n".join(out)
 
 
-__all__ = ["SIZES", "scaling_table", "scaling_text"]
+__all__ = ["MODES", "SIZES", "scaling_table", "scaling_text"]

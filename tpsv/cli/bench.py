@@ -87,8 +87,9 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
 @click.option("--rd/--no-rd", default=True, show_default=True,
               help="The rate-distortion table: tpsv --quality sweep with and without detail, JPEG, WebP, BD-PSNR.")
 @click.option("--scaling", is_flag=True, default=False,
-              help="Also vectorize the first image resized to 512, 1024 and 2048 px square, each in a child "
-                   "process: seconds and peak memory (a few minutes on a laptop).")
+              help="Also vectorize the first image resized to 512, 1024 and 2048 px square, at the default "
+                   "quality and --no-detail, each in a child process: seconds and peak memory (a few minutes "
+                   "on a laptop).")
 @device_option
 @json_option
 @click.pass_context
