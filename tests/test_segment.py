@@ -219,3 +219,50 @@ def test_overlay_regions():
     img, truth = _synthetic()
     out = overlay_regions(img, truth)
     assert out.shape == img.shape and out.dtype == np.uint8
+
+
+def _disc_picture(size: int = 256):
+    """A dark disc (off the pixel grid) on a light ramp, and the disc's true membership."""
+    yy, xx = np.mgrid[:size, :size] + 0.5
+    inside = (xx - 121.3) ** 2 + (yy - 133.7) ** 2 < 70.4 ** 2
+    rgb = np.empty((size, size, 3), np.float32)
+    rgb[...] = (0.7 + 0.2 * xx / size)[..., None]
+    rgb[inside] = (0.15, 0.25, 0.5)
+    return rgb, inside
+
+
+def _mixed_share(sp: np.ndarray, inside: np.ndarray) -> float:
+    """Share of the pixels that lie on the other side of the disc's edge than most of their superpixel."""
+    n = int(sp.max()) + 1
+    ins = np.bincount(sp.ravel(), inside.ravel(), n)
+    tot = np.bincount(sp.ravel(), minlength=n)
+    return float(np.minimum(ins, tot - ins).sum() / sp.size)
+
+
+def test_a_large_picture_gets_its_superpixels_from_a_smaller_copy_on_its_own_edges(monkeypatch):
+    """Above SLIC_PIXELS, SLIC runs on a copy downscaled by a whole factor; the borders, blocky
+    at that factor, are then put back on the picture's edges at full size (``_refine``)."""
+    from tpsv.geometry import segment
+
+    rgb, inside = _disc_picture()
+    full, n_full = segment._superpixels(rgb)
+    monkeypatch.setattr(segment, "SLIC_PIXELS", 64 * 64)  # a factor of 4
+    small, n = segment._superpixels(rgb)
+    assert small.shape == inside.shape and small.dtype == np.int32
+    assert np.array_equal(np.unique(small), np.arange(n)) and abs(n - n_full) <= n_full // 4
+    blocky = []
+    monkeypatch.setattr(segment, "_refine", lambda sp, *a: blocky.append(sp) or sp)
+    segment._superpixels(rgb)
+    # the refined borders follow the disc as closely as full-size SLIC's; the blocky ones do not
+    assert _mixed_share(small, inside) <= max(2 * _mixed_share(full, inside), 1e-3)
+    assert _mixed_share(blocky[0], inside) > 3 * _mixed_share(small, inside)
+
+
+def test_segment_auto_keeps_the_disc_whole_from_a_smaller_copy(monkeypatch):
+    from tpsv.geometry import segment
+
+    rgb, inside = _disc_picture()
+    monkeypatch.setattr(segment, "SLIC_PIXELS", 64 * 64)
+    labels = segment_auto(rgb)
+    disc = np.bincount(labels[inside]).argmax()
+    assert ((labels == disc) != inside).mean() < 0.002
