@@ -466,23 +466,29 @@ def choose_grid(mask_area: float, rect_w: float, rect_h: float, n_features: int 
     return M, N
 
 
-def _min_area_rect(mask: np.ndarray, outline=None):
-    """Minimum-area rectangle (centre, unit axes, lengths) of all the region's pixel squares."""
+def _mask_hull(mask: np.ndarray | None) -> np.ndarray:
+    """Vertices (k, 2) of the convex hull of all the region's pixel squares (none for no mask).
+
+    Boundary pixels suffice: the squares of interior pixels lie inside their hull.
+    """
+    if mask is None:
+        return np.zeros((0, 2))
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    rr, cc = np.nonzero(mask & (inner == 0))
+    if not rr.size:
+        return np.zeros((0, 2))
+    corners = np.concatenate([np.stack([cc + dx, rr + dy], axis=1) for dx in (0, 1) for dy in (0, 1)], axis=0)
+    # whole pixel corners: exact in float32 up to 2^24 px
+    return cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+
+
+def _min_area_rect(hull: np.ndarray, outline=None):
+    """Minimum-area rectangle (centre, unit axes, lengths) of the region's pixel squares (their ``hull``,
+    :func:`_mask_hull`) and its outline's outer polygon."""
     if outline is not None and len(outline):
-        pts = np.asarray(outline[0], np.float64)
+        pts = np.concatenate([np.asarray(outline[0], np.float64), hull], axis=0)
     else:
-        pts = np.zeros((0, 2))
-    if mask is not None:
-        # boundary pixels suffice: the squares of interior pixels lie inside their hull
-        inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        rr, cc = np.nonzero(mask & (inner == 0))
-        if rr.size:
-            # corners of boundary-ish pixels: the hull of all pixel squares
-            corners = np.concatenate(
-                [np.stack([cc + dx, rr + dy], axis=1) for dx in (0, 1) for dy in (0, 1)], axis=0
-            ).astype(np.float64)
-            hull = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
-            pts = np.concatenate([pts, hull], axis=0)
+        pts = hull
     if len(pts) == 0:
         raise TpsvError("cannot build a patch for an empty region")
     (cx, cy), (w, h), ang = cv2.minAreaRect(pts.astype(np.float32))
@@ -514,23 +520,15 @@ PAD = 1.0
 GRID_QUANTUM = 16
 
 
-def _covers(mask, O, a, b, M, N) -> bool:
-    """Whether every pixel corner of ``mask`` maps inside the affine grid's domain."""
-    if mask is None or not mask.any():
+def _covers(hull: np.ndarray, O, a, b, M, N) -> bool:
+    """Whether every pixel corner of the region maps inside the affine grid's domain: the domain is
+    convex, so the corners of the pixel squares' ``hull`` (:func:`_mask_hull`) tell."""
+    if len(hull) == 0:
         return True
     eps = 1e-9
-    rows = max(1, (1 << 16) // max(mask.shape[1], 1))  # a band of rows at a time: memory of the band only
-    for r0 in range(0, mask.shape[0], rows):
-        r, c = np.nonzero(mask[r0:r0 + rows])
-        if r.size == 0:
-            continue
-        r = r + r0
-        corners = np.concatenate([np.stack([c + dx, r + dy], 1) for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
-        st = np.linalg.solve(np.stack([a, b], 1), (corners - O).T).T
-        if not ((st[:, 0] >= -eps).all() and (st[:, 0] <= M - 1 + eps).all()
-                and (st[:, 1] >= -eps).all() and (st[:, 1] <= N - 1 + eps).all()):
-            return False
-    return True
+    st = np.linalg.solve(np.stack([a, b], 1), (hull - O).T).T
+    return bool((st[:, 0] >= -eps).all() and (st[:, 0] <= M - 1 + eps).all()
+                and (st[:, 1] >= -eps).all() and (st[:, 1] <= N - 1 + eps).all())
 
 
 def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = None, n_features: int | None = None) -> Patch:
@@ -575,7 +573,8 @@ def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = N
         Passed to :func:`choose_grid`.
     """
     mask = None if mask is None else np.asarray(mask, bool)
-    c, e1, e2, L1, L2 = _min_area_rect(mask, outline)
+    hull = _mask_hull(mask)
+    c, e1, e2, L1, L2 = _min_area_rect(hull, outline)
     L1 += 2 * PAD
     L2 += 2 * PAD
     area = float(mask.sum()) if mask is not None else L1 * L2
@@ -593,7 +592,7 @@ def build_patch(mask: np.ndarray, outline=None, grid: tuple[int, int] | None = N
         a = np.round(e1 * (L1 / (M - 1)) * q) / q
         b = np.round(e2 * (L2 / (N - 1)) * q) / q
         O = np.round((c - a * (M - 1) / 2 - b * (N - 1) / 2) * q) / q
-        if _covers(mask, O, a, b, M, N):
+        if _covers(hull, O, a, b, M, N):
             break
         L1 += 1.0
         L2 += 1.0
