@@ -129,17 +129,31 @@ def test_max_bytes_is_never_exceeded(photo, textured):
         encode_quality(rgb, labels, max_bytes=100)
 
 
-def test_quality_search_finds_the_bound_and_codes_the_top_quality_last():
-    """The bisection over qualities gives the brute-force answer for every threshold, and tries
-    the top quality (the slowest texture to code) only when no lower one holds."""
+@pytest.mark.parametrize("workers", [1, 2, 3, 8])
+def test_quality_search_finds_the_bound_and_codes_the_top_quality_last(workers):
+    """The search over qualities gives the brute-force answer for every threshold, on one worker (a
+    bisection) or several (qualities tried at once), and tries the top quality (the slowest texture
+    to code) only when no lower one holds."""
     for first in list(range(1, 101)) + [None]:
         tried = []
         ok = lambda q: tried.append(q) or (first is not None and q >= first)  # noqa: E731
-        assert rate._lowest(ok) == first
-        assert len(tried) <= rate.MAX_TRIALS
+        assert rate._lowest(ok, workers) == first
+        assert len(tried) == len(set(tried))
+        if workers == 1:
+            assert len(tried) <= rate.MAX_TRIALS
+        else:  # rounds of ``workers`` qualities, each leaving 1 / (workers + 1) of the interval open
+            rounds = int(np.ceil(np.log(100) / np.log(workers + 1))) + 1
+            assert len(tried) <= workers * rounds + 1
         assert (rate.MAX_QUALITY in tried) == (first in (None, rate.MAX_QUALITY))
         fits = lambda q: first is None or q < first  # noqa: E731 (true up to a point)
-        assert rate._highest(fits) == (rate.MAX_QUALITY if first is None else (first - 1 or None))
+        assert rate._highest(fits, workers) == (rate.MAX_QUALITY if first is None else (first - 1 or None))
+
+
+def test_search_workers_bounded_by_memory():
+    assert rate.search_workers(64 * 64) >= 1
+    assert rate.search_workers(64 * 64) <= rate.SEARCH_WORKERS
+    huge = rate.SEARCH_MEMORY // rate.SEARCH_BYTES_PER_PIXEL
+    assert rate.search_workers(huge) == 1 and rate.search_workers(huge * 10) == 1
 
 
 def test_target_psnr_met_or_closest_reported(photo, textured):

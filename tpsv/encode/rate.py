@@ -22,6 +22,7 @@ and, at the top, curvilinear pairs, from :func:`vector_params`.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 from typing import Callable
@@ -34,6 +35,7 @@ from .. import codec, metrics
 from ..errors import TpsvError
 from ..model import DETAIL_ZERO, Params
 from ..rendering.raster import render
+from ..threads import pool as host_pool
 from . import detail as detail_layer
 from .features import FINE_LATTICE_PX, LATTICE_PX, FeatureExtractor
 from .memory import give_back
@@ -363,12 +365,17 @@ def encode_quality(
     trials = Trials(rgb, geometry, params or scheme_params(), detail, device,
                     tried=lambda n: report(min(1 + n, total - 1), total))
     reached = True
+    workers = 1
+    if detail and (target_psnr is not None or max_bytes is not None):
+        # only the texture is coded again for each quality: several at once, the base made first
+        workers = search_workers(rgb.shape[0] * rgb.shape[1])
+        trials.vector_base()
     if target_psnr is not None:
-        q = _lowest(lambda k: metrics.psnr_of_mse(trials(k)[2]) >= target_psnr)
+        q = _lowest(lambda k: metrics.psnr_of_mse(trials(k)[2]) >= target_psnr, workers)
         reached = q is not None
         q = MAX_QUALITY if q is None else q
     elif max_bytes is not None:
-        q = _highest(lambda k: len(trials(k)[0]) <= int(max_bytes))
+        q = _highest(lambda k: len(trials(k)[0]) <= int(max_bytes), workers)
         if q is None:
             raise TpsvError(f"no quality fits in {int(max_bytes)} bytes: the smallest file is "
                             f"{len(trials(MIN_QUALITY)[0])} bytes (quality 1)")
@@ -383,35 +390,62 @@ def encode_quality(
 
 #: Most encodings a search for a target PSNR or size tries (bisection of 1..100, after the ends).
 MAX_TRIALS = 9
+#: Most textures a search codes at once (each on its own thread: OpenCV's AVIF writer codes one
+#: image on one thread), and the memory they may hold together (bytes; about
+#: :data:`SEARCH_BYTES_PER_PIXEL` each: the coded texels, the picture and its temporaries).
+SEARCH_WORKERS = 8
+SEARCH_MEMORY = 1 << 30
+SEARCH_BYTES_PER_PIXEL = 48
+
+
+def search_workers(pixels: int) -> int:
+    """Qualities a search for a target tries at once for a picture of ``pixels``: the cores this
+    process may use, at most :data:`SEARCH_WORKERS`, fewer where their memory would pass
+    :data:`SEARCH_MEMORY`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    by_memory = SEARCH_MEMORY // max(1, SEARCH_BYTES_PER_PIXEL * int(pixels))
+    return int(max(1, min(cores, SEARCH_WORKERS, by_memory)))
 
 
 def progress_steps(target_psnr=None, max_bytes=None) -> int:
     """Steps :func:`encode_quality` reports to ``progress``: the geometry, then one encoding, or up to
-    :data:`MAX_TRIALS` when searching for a PSNR or a size."""
+    :data:`MAX_TRIALS` when searching for a PSNR or a size (a search on several workers may try
+    more, in fewer rounds: the count stops one short of the end until it is done)."""
     return 1 + (MAX_TRIALS if target_psnr is not None or max_bytes is not None else 1)
 
 
-def _lowest(ok) -> int | None:
+def _lowest(ok, workers: int = 1) -> int | None:
     """The lowest quality for which ``ok`` holds (assumed monotonic), or None.
 
-    The top quality, the slowest to code (astronaut's texture: 5.8 s at quality 100 against
-    1.7 s at 75), is tried only when no lower one holds: the same answer as trying it first.
+    Each round tries up to ``workers`` qualities at once, evenly spaced in the
+    interval still open (``ok`` is then called from that many threads); one
+    worker is a bisection. The top quality, the slowest to code (astronaut's
+    texture: 5.8 s at quality 100 against 1.7 s at 75), is tried only when no
+    lower one holds: the same answer as trying it first.
     """
     lo, hi = MIN_QUALITY - 1, MAX_QUALITY  # ok(hi) taken as true until tried; ok(lo) as false
     while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if ok(mid):
-            hi = mid
+        k = min(max(1, int(workers)), hi - lo - 1)
+        points = sorted({lo + (j + 1) * (hi - lo) // (k + 1) for j in range(k)})
+        if k > 1:
+            results = list(host_pool("search", int(workers)).map(ok, points))
         else:
-            lo = mid
+            results = [ok(q) for q in points]
+        good = [q for q, r in zip(points, results) if r]
+        hi = min(good, default=hi)
+        lo = max([q for q, r in zip(points, results) if not r and q < hi], default=lo)
     if hi == MAX_QUALITY and not ok(MAX_QUALITY):
         return None
     return hi
 
 
-def _highest(ok) -> int | None:
-    """The highest quality for which ``ok`` holds (assumed monotonic: true up to a point), or None."""
+def _highest(ok, workers: int = 1) -> int | None:
+    """The highest quality for which ``ok`` holds (assumed monotonic: true up to a point), or None
+    (``workers`` as :func:`_lowest`)."""
     if not ok(MIN_QUALITY):
         return None
-    first_bad = _lowest(lambda k: not ok(k))
+    first_bad = _lowest(lambda k: not ok(k), workers)
     return MAX_QUALITY if first_bad is None else first_bad - 1
