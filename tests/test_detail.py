@@ -149,7 +149,10 @@ def test_quality_search_finds_the_bound_and_codes_the_top_quality_last(workers):
         assert rate._highest(fits, workers) == (rate.MAX_QUALITY if first is None else (first - 1 or None))
 
 
-def test_search_workers_bounded_by_memory():
+def test_search_workers_bounded_by_memory(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # a batch worker's share
+    assert rate.search_workers(64 * 64) == 1
+    monkeypatch.delenv("OMP_NUM_THREADS")
     assert rate.search_workers(64 * 64) >= 1
     assert rate.search_workers(64 * 64) <= rate.SEARCH_WORKERS
     huge = rate.SEARCH_MEMORY // rate.SEARCH_BYTES_PER_PIXEL

@@ -32,6 +32,19 @@ def pool(purpose: str, threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=max(1, int(threads)), thread_name_prefix=f"tpsv-{purpose}")
 
 
+def host_cores() -> int:
+    """The CPU cores this process may use, no more than ``OMP_NUM_THREADS`` when that is set (a
+    ``tpsv batch`` worker's share of the machine)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    limit = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if limit.isdigit() and int(limit) > 0:
+        n = min(n, int(limit))
+    return max(1, n)
+
+
 # a forked child has the parent's pool objects but none of their threads: it makes its own
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=pool.cache_clear)

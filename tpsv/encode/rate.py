@@ -22,7 +22,6 @@ and, at the top, curvilinear pairs, from :func:`vector_params`.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import replace
 from typing import Callable
@@ -35,7 +34,7 @@ from .. import codec, metrics
 from ..errors import TpsvError
 from ..model import DETAIL_ZERO, Params
 from ..rendering.raster import render
-from ..threads import pool as host_pool
+from ..threads import host_cores, pool as host_pool
 from . import detail as detail_layer
 from .features import FINE_LATTICE_PX, LATTICE_PX, FeatureExtractor
 from .memory import give_back
@@ -400,12 +399,9 @@ SEARCH_BYTES_PER_PIXEL = 48
 
 def search_workers(pixels: int) -> int:
     """Qualities a search for a target tries at once for a picture of ``pixels``: the cores this
-    process may use, at most :data:`SEARCH_WORKERS`, fewer where their memory would pass
-    :data:`SEARCH_MEMORY`."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
+    process may use (:func:`tpsv.threads.host_cores`), at most :data:`SEARCH_WORKERS`, fewer where
+    their memory would pass :data:`SEARCH_MEMORY`."""
+    cores = host_cores()
     by_memory = SEARCH_MEMORY // max(1, SEARCH_BYTES_PER_PIXEL * int(pixels))
     return int(max(1, min(cores, SEARCH_WORKERS, by_memory)))
 
