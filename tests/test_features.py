@@ -565,3 +565,16 @@ def test_cell_stats_against_direct_means():
             assert st["rms"][c] == 0 and np.all(st["lab"][c] == 0)
     plain = cell_stats(cell, 8, col * LAB_SCALE)
     assert np.allclose(plain["rms"], st["rms"], rtol=1e-9)
+
+
+def test_threshold_above_any_gradient_traces_nothing_without_the_gradient():
+    """The vector base of a quality asks for no pairs (t_canny 1e9): the answer is Canny's (no edge),
+    given before the gradient is made."""
+    rng = np.random.default_rng(3)
+    rgb = rng.random((40, 50, 3)).astype(np.float32)
+    rgb[:, 25:] = 1.0 - rgb[:, 25:]
+    fe = FeatureExtractor(rgb, None)
+    assert not fe.edges(1e9).any() and fe._grad is None
+    assert len(fe.curvilinear(1e9)) == 0 and fe._grad is None
+    top = 46341.0 / 8.0  # just above the largest magnitude Canny sees, in t_canny units
+    assert fe.edges(20.0).any() and not fe.edges(top).any()

@@ -99,6 +99,8 @@ from ..model import CURVILINEAR, GRADATION, Features
 LAB_SCALE = 2.55
 #: Integer scale of the Sobel derivatives handed to cv2.Canny (int16).
 _CANNY_INT = 8.0
+#: The largest gradient magnitude Canny sees: both int16 derivatives at their clip.
+_CANNY_MAX = float(np.hypot(32767.0, 32767.0))
 #: Pixels per initial superpixel (the paper's N_pixel / 4000).
 CELL_PIXELS = 4000
 #: Gradation features closer than this (pixels) to a curvilinear feature of their region are dropped.
@@ -475,6 +477,10 @@ class FeatureExtractor:
         """Canny edge mask (bool HxW): high threshold ``t_canny``, low ``t_canny / 2``."""
         hi = float(max(t_canny, 0.0)) * _CANNY_INT
         lo = 0.5 * hi
+        if hi > _CANNY_MAX:
+            # no gradient Canny reads can pass (the vector base of a quality, t_canny 1e9): nothing
+            # to trace, and no gradient to make (1.5 s of a 12-megapixel photo)
+            return np.zeros((self.h, self.w), bool)
         dx16, dy16 = self._gradient()[3:]
         e = cv2.Canny(dx16, dy16, lo, hi, L2gradient=True)
         return e > 0
