@@ -517,20 +517,50 @@ def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:
     """
     h, w = labels.shape
     n = int(labels.max()) + 1
-    # per region the normal equations of the fit, summed band by band (a few float64 rows at a time)
+    # per region the normal equations of the fit over X = (x / w, y / h, 1), summed run by run of
+    # one label along a row: sums over a run are differences of prefix sums along the row
     xtx = np.zeros((n, 3, 3))
     xtc = np.zeros((n, 3, 3))
     ctc = np.zeros(n)
+    xs = np.arange(w, dtype=np.float64) / max(w, 1)
+    px = np.concatenate([[0.0], np.cumsum(xs)])
+    pxx = np.concatenate([[0.0], np.cumsum(xs * xs)])
     for a, b in row_bands(h, w):
-        L = labels[a:b].ravel().astype(np.int64)
-        yy, xx = np.mgrid[a:b, :w]
-        X = np.stack([xx.ravel() / max(w, 1), yy.ravel() / max(h, 1), np.ones(L.size)], axis=1)
-        C = lab[a:b].reshape(-1, 3).astype(np.float64)
-        for i in range(3):
-            for j in range(3):
-                xtx[:, i, j] += np.bincount(L, X[:, i] * X[:, j], n)
-                xtc[:, i, j] += np.bincount(L, X[:, i] * C[:, j], n)
-        ctc += np.bincount(L, (C * C).sum(axis=1), n)
+        L = labels[a:b]
+        rows = b - a
+        start = np.ones((rows, w), bool)
+        start[:, 1:] = L[:, 1:] != L[:, :-1]
+        rr, c0 = np.nonzero(start)
+        c1 = np.empty_like(c0)
+        c1[:-1] = c0[1:]
+        c1[np.r_[rr[1:] != rr[:-1], True]] = w  # a run ends where the next one starts, or at the row's end
+        lab_r = L[rr, c0].astype(np.int64)
+        C = lab[a:b].astype(np.float64)
+        pc = np.zeros((rows, w + 1, 3))
+        np.cumsum(C, axis=1, out=pc[:, 1:])
+        pxc = np.zeros((rows, w + 1, 3))
+        np.cumsum(C * xs[None, :, None], axis=1, out=pxc[:, 1:])
+        pcc = np.zeros((rows, w + 1))
+        np.cumsum((C * C).sum(axis=2), axis=1, out=pcc[:, 1:])
+        y = (a + rr) / max(h, 1)
+        cnt = (c1 - c0).astype(np.float64)
+        sx = px[c1] - px[c0]
+        sums = {
+            (0, 0): pxx[c1] - pxx[c0], (0, 1): y * sx, (0, 2): sx,
+            (1, 1): y * y * cnt, (1, 2): y * cnt, (2, 2): cnt,
+        }
+        for (i, j), v in sums.items():
+            t = np.bincount(lab_r, v, n)
+            xtx[:, i, j] += t
+            if i != j:
+                xtx[:, j, i] += t
+        sc = pc[rr, c1] - pc[rr, c0]
+        sxc = pxc[rr, c1] - pxc[rr, c0]
+        for j in range(3):
+            xtc[:, 0, j] += np.bincount(lab_r, sxc[:, j], n)
+            xtc[:, 1, j] += np.bincount(lab_r, y * sc[:, j], n)
+            xtc[:, 2, j] += np.bincount(lab_r, sc[:, j], n)
+        ctc += np.bincount(lab_r, pcc[rr, c1] - pcc[rr, c0], n)
     sq = ctc.copy()
     for r in range(n):
         beta = np.linalg.pinv(xtx[r]) @ xtc[r]
