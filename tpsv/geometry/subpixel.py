@@ -972,13 +972,14 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
         a = at(s[:-1] + CORNER_ARM) - p
         cos = (a * b).sum(axis=1) / np.maximum(np.hypot(*a.T) * np.hypot(*b.T), 1e-12)
         turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        taken: list[float] = []
+        # points within 2 CORNER_ARM (along the contour) of a corner taken: no second corner there
+        blocked = np.zeros(n, bool)
         for c in np.argsort(-turn):
             if turn[c] < CORNER_TURN:
                 break
-            if any(abs((s[c] - t + total / 2) % total - total / 2) < 2 * CORNER_ARM for t in taken):
+            if blocked[c]:
                 continue
-            taken.append(s[c])
+            blocked |= np.abs((s[:-1] - s[c] + total / 2) % total - total / 2) < 2 * CORNER_ARM
             rel = (s[:-1] - s[c] + total / 2) % total - total / 2  # signed arc from the corner
             # the runs either side: long ones first (the rounding can reach 2-3 px along
             # the sides of a sharp corner), short ones for small shapes
