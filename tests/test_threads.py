@@ -73,3 +73,21 @@ def test_every_banded_kernel_has_a_cost():
     launched.discard("kernel")  # the definition's parameter
     assert len(launched) >= 15
     assert launched <= set(HOST_SECONDS), launched - set(HOST_SECONDS)
+
+
+def test_bands_on_threads_give_the_whole_image_once():
+    """for_bands visits every band once from its threads, and lab_image's bands put together are
+    srgb_to_lab of the whole image, bit for bit."""
+    from tpsv.color import srgb_to_lab
+    from tpsv.geometry.bands import for_bands, lab_image, row_bands
+
+    seen = []
+
+    def visit(rows):
+        seen.append(rows)
+
+    for_bands(visit, 300, 7, pixels=64)
+    assert sorted(seen) == list(row_bands(300, 7, 64))
+    rgb = np.random.default_rng(1).random((1500, 90, 3))
+    assert np.array_equal(lab_image(rgb), srgb_to_lab(rgb))
+    assert np.array_equal(lab_image(rgb * 1.2 - 0.1, clip=True), srgb_to_lab(np.clip(rgb * 1.2 - 0.1, 0, 1)))

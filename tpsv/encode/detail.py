@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..codec import detail as detail_codec
-from ..geometry.bands import row_bands
+from ..geometry.bands import for_bands
 from ..geometry.patch import affine_frame
 from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_OFF, DETAIL_YCC, DETAIL_ZERO, Detail, Model
 
@@ -46,9 +46,13 @@ def residual_texels(rgb: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     """
     h, w = rgb.shape[:2]
     out = np.empty((h, w, 3), np.uint16)
-    for a, b in row_bands(h, w):
+
+    def band(rows):
+        a, b = rows
         res = (np.asarray(rgb[a:b], np.float64) - np.asarray(rendered[a:b], np.float64)) @ DETAIL_YCC.T
         out[a:b] = np.clip(np.rint(DETAIL_ZERO + DETAIL_GAIN * res), 0, 1023)
+
+    for_bands(band, h, w)
     return out
 
 
@@ -57,8 +61,12 @@ def texel_rgb(texels: np.ndarray) -> np.ndarray:
     h, w = texels.shape[:2]
     to_rgb = np.linalg.inv(DETAIL_YCC).T
     out = np.empty((h, w, 3), np.float32)
-    for a, b in row_bands(h, w):
+
+    def band(rows):
+        a, b = rows
         out[a:b] = ((texels[a:b].astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ to_rgb
+
+    for_bands(band, h, w)
     return out
 
 
@@ -86,6 +94,12 @@ def with_texels(rendered: np.ndarray, texels: np.ndarray) -> np.ndarray:
     """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual."""
     h, w = rendered.shape[:2]
     out = np.empty(np.broadcast_shapes(rendered.shape, texels.shape), np.result_type(rendered, np.float32))
-    for a, b in row_bands(h, w):
-        np.clip(rendered[a:b] + texel_rgb(texels[a:b]), 0.0, 1.0, out=out[a:b])
+    to_rgb = np.linalg.inv(DETAIL_YCC).T
+
+    def band(rows):
+        a, b = rows
+        res = ((texels[a:b].astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ to_rgb
+        np.clip(rendered[a:b] + res.astype(np.float32), 0.0, 1.0, out=out[a:b])
+
+    for_bands(band, h, w)
     return out

@@ -13,9 +13,12 @@ from typing import Iterator
 import numpy as np
 
 from ..color import srgb_to_lab
+from ..threads import host_cores, pool
 
 #: Pixels per band (whole rows; at least one row).
 BAND_PIXELS = 1 << 16
+#: Most host threads :func:`for_bands` runs bands on (each holds a band's temporaries).
+BAND_THREADS = 8
 
 
 def row_bands(height: int, width: int, pixels: int = BAND_PIXELS) -> Iterator[tuple[int, int]]:
@@ -54,9 +57,25 @@ def lab_image(rgb: np.ndarray, clip: bool = False) -> np.ndarray:
     """
     h, w = rgb.shape[:2]
     out = np.empty((h, w, 3), np.float32)
-    for a, b in row_bands(h, w):
+
+    def band(rows: tuple[int, int]) -> None:
+        a, b = rows
         out[a:b] = srgb_to_lab(np.clip(rgb[a:b], 0, 1) if clip else rgb[a:b])
+
+    for_bands(band, h, w)
     return out
 
 
-__all__ = ["BAND_PIXELS", "lab_image", "row_bands"]
+def for_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> None:
+    """``fn((a, b))`` for every band of :func:`row_bands`, on a few host threads (numpy releases the
+    GIL in its heavy calls; each band's values are what one thread computes)."""
+    bands = list(row_bands(height, width, pixels))
+    workers = min(BAND_THREADS, host_cores(), len(bands))
+    if workers > 1:
+        list(pool("bands", workers).map(fn, bands))
+    else:
+        for rows in bands:
+            fn(rows)
+
+
+__all__ = ["BAND_PIXELS", "BAND_THREADS", "for_bands", "lab_image", "row_bands"]
