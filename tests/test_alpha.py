@@ -129,6 +129,9 @@ def test_no_transparent_pixel_means_no_transparent_region():
     assert alpha_mod.transparent_mask(np.ones_like(a)) is None
     with pytest.raises(TpsvError, match="fully transparent"):
         encode_quality(rgb, None, quality=10, alpha=np.zeros_like(a))
+    # translucent all over (alpha 0.4 everywhere) is translucency, not a transparent picture
+    with pytest.raises(TpsvError, match="partly transparent in"):
+        alpha_mod.transparent_mask(np.full_like(a, 0.4))
 
 
 def test_transparency_survives_encode_decode_and_edits(encoded):

@@ -55,13 +55,13 @@ def transparent_mask(alpha: np.ndarray | None) -> np.ndarray | None:
         return None
     alpha = np.asarray(alpha)
     mask = alpha < CUT
-    if mask.all():
-        raise TpsvError("the image is fully transparent: nothing to vectorize")
     kernel = np.ones((2 * EDGE_PX + 1, 2 * EDGE_PX + 1), np.uint8)
     m8 = mask.astype(np.uint8)
     edge = cv2.dilate(m8, kernel).astype(bool) & cv2.dilate(1 - m8, kernel).astype(bool)
     loose = int(((alpha > 0) & (alpha < 1) & ~edge).sum())
-    if loose:
+    if mask.all() and not loose:
+        raise TpsvError("the image is fully transparent: nothing to vectorize")
+    if loose:  # (an image translucent all over is this, not fully transparent)
         raise TpsvError(f"the image is partly transparent in {loose} px away from the edges of its transparent "
                         "part; tpsv keeps transparent areas and their anti-aliased edges, not translucency: "
                         "flatten it onto a background first")
