@@ -266,3 +266,19 @@ def test_segment_auto_keeps_the_disc_whole_from_a_smaller_copy(monkeypatch):
     labels = segment_auto(rgb)
     disc = np.bincount(labels[inside]).argmax()
     assert ((labels == disc) != inside).mean() < 0.002
+
+
+def test_renumber_numbers_values_in_raster_order_of_their_first_pixel():
+    from tpsv.geometry.segment import _renumber
+
+    rng = np.random.default_rng(5)
+    comp = rng.integers(0, 40, (700, 300)) * 3  # values missing between them; bands of 218 rows
+    lut = rng.permutation(200)
+    for table in (None, lut):
+        mapped = comp if table is None else table[comp]
+        vals, first = np.unique(mapped.ravel(), return_index=True)
+        rank = np.zeros(vals.max() + 1, np.int64)
+        rank[vals[np.argsort(first)]] = np.arange(len(vals))
+        want = rank[mapped]
+        out, n = _renumber(comp, table)
+        assert n == len(vals) and out.dtype == np.int32 and np.array_equal(out, want)

@@ -43,9 +43,11 @@ def _renumber(comp: np.ndarray, lut: np.ndarray | None = None) -> tuple[np.ndarr
     first = np.full(top, comp.size, np.int64)  # first flat index of every value (comp.size: absent)
     for a, b in row_bands(h, w):
         band = comp[a:b].ravel() if lut is None else lut[comp[a:b].ravel()]
-        vals, at = np.unique(band, return_index=True)
-        new = first[vals] == comp.size
-        first[vals[new]] = at[new] + a * w
+        # only values not seen in an earlier band need their first pixel here (few, past the first bands)
+        fresh = np.flatnonzero((first == comp.size)[band])
+        if fresh.size:
+            vals, at = np.unique(band[fresh], return_index=True)
+            first[vals] = fresh[at] + a * w
     seen = np.nonzero(first < comp.size)[0]
     rank = np.zeros(top, np.int32)
     rank[seen[np.argsort(first[seen])]] = np.arange(seen.size, dtype=np.int32)
