@@ -163,13 +163,14 @@ def smooth_fills(rgb: np.ndarray, shown: np.ndarray, index: np.ndarray, transpar
     """
     n = len(transparent) if len(transparent) else int(index.max()) + 1
     out = np.zeros(n, bool)
-    boxes = ndimage.find_objects(np.asarray(index, np.int64) + 1, max_label=n)
+    boxes = ndimage.find_objects(np.asarray(index, np.int32) + 1, max_label=n)
     for r, box in enumerate(boxes):
         if box is None or (len(transparent) and transparent[r]):
             continue
         mask = index[box] == r
+        inside = mask[..., None]
         res = np.asarray(rgb[box], np.float32) - np.asarray(shown[box], np.float32)
-        res[~mask] = 0.0
+        res *= inside  # zero outside the region
         h, w = mask.shape
         half = ((w + 1) // 2, (h + 1) // 2)
         s = SMOOTH_SIGMA / 2.0
@@ -178,10 +179,13 @@ def smooth_fills(rgb: np.ndarray, shown: np.ndarray, index: np.ndarray, transpar
         den = cv2.GaussianBlur(cv2.resize(mask.astype(np.float32), half, interpolation=cv2.INTER_AREA), (0, 0), s,
                                borderType=cv2.BORDER_CONSTANT)
         num /= np.maximum(den, 1e-6)[..., None]
-        smooth = cv2.resize(num, (w, h), interpolation=cv2.INTER_LINEAR)[mask]
-        res = res[mask]
-        rms = float(np.sqrt(np.mean(smooth ** 2)))
-        rest = float(np.sqrt(np.mean((res - smooth) ** 2)))  # texture, noise, steps
+        smooth = cv2.resize(num, (w, h), interpolation=cv2.INTER_LINEAR)
+        smooth *= inside
+        res -= smooth  # texture, noise, steps
+        count = 3.0 * max(int(mask.sum()), 1)
+        # sums over the region's values (the rest are zeros), in float64
+        rms = float(np.sqrt(np.sum(np.square(smooth), dtype=np.float64) / count))
+        rest = float(np.sqrt(np.sum(np.square(res), dtype=np.float64) / count))
         out[r] = rms >= SMOOTH_FILL_MIN and rest <= SMOOTH_FILL_TEXTURE
     return out
 
