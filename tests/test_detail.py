@@ -155,8 +155,9 @@ def test_search_workers_bounded_by_memory(monkeypatch):
     monkeypatch.delenv("OMP_NUM_THREADS")
     assert rate.search_workers(64 * 64) >= 1
     assert rate.search_workers(64 * 64) <= rate.SEARCH_WORKERS
-    huge = rate.SEARCH_MEMORY // rate.SEARCH_BYTES_PER_PIXEL
+    huge = rate.SEARCH_MEMORY // rate.SEARCH_BYTES_PER_PIXEL + 1  # one more worker would pass the memory
     assert rate.search_workers(huge) == 1 and rate.search_workers(huge * 10) == 1
+    assert rate.search_workers(4000 * 3000) == 1
 
 
 def test_target_psnr_met_or_closest_reported(photo, textured):

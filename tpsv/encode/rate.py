@@ -394,20 +394,21 @@ def encode_quality(
 #: Most encodings a search for a target PSNR or size tries (bisection of 1..100, after the ends).
 MAX_TRIALS = 9
 #: Most textures a search codes at once (each on its own thread: OpenCV's AVIF writer codes one
-#: image on one thread), and the memory they may hold together (bytes; about
-#: :data:`SEARCH_BYTES_PER_PIXEL` each: the coded texels, the picture and its temporaries).
+#: image on one thread), and the memory the ones beyond the first may add (bytes), each about
+#: :data:`SEARCH_BYTES_PER_PIXEL` (libaom's encoder, the coded texels and the picture: measured
+#: 190 B a pixel on the 512x512 astronaut and 167 on it resized to 1448x1448).
 SEARCH_WORKERS = 8
-SEARCH_MEMORY = 1 << 30
-SEARCH_BYTES_PER_PIXEL = 48
+SEARCH_MEMORY = 1 << 29
+SEARCH_BYTES_PER_PIXEL = 192
 
 
 def search_workers(pixels: int) -> int:
     """Qualities a search for a target tries at once for a picture of ``pixels``: the cores this
-    process may use (:func:`tpsv.threads.host_cores`), at most :data:`SEARCH_WORKERS`, fewer where
-    their memory would pass :data:`SEARCH_MEMORY`."""
-    cores = host_cores()
-    by_memory = SEARCH_MEMORY // max(1, SEARCH_BYTES_PER_PIXEL * int(pixels))
-    return int(max(1, min(cores, SEARCH_WORKERS, by_memory)))
+    process may use (:func:`tpsv.threads.host_cores`), at most :data:`SEARCH_WORKERS`, and no
+    more than the first and as many again as :data:`SEARCH_MEMORY` holds (one for photos of
+    more than about 2.8 megapixels)."""
+    by_memory = 1 + SEARCH_MEMORY // max(1, SEARCH_BYTES_PER_PIXEL * int(pixels))
+    return int(max(1, min(host_cores(), SEARCH_WORKERS, by_memory)))
 
 
 def progress_steps(target_psnr=None, max_bytes=None) -> int:
