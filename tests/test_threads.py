@@ -91,3 +91,21 @@ def test_bands_on_threads_give_the_whole_image_once():
     rgb = np.random.default_rng(1).random((1500, 90, 3))
     assert np.array_equal(lab_image(rgb), srgb_to_lab(rgb))
     assert np.array_equal(lab_image(rgb * 1.2 - 0.1, clip=True), srgb_to_lab(np.clip(rgb * 1.2 - 0.1, 0, 1)))
+
+
+def test_progress_moves_forward_only_from_any_thread():
+    """A quality search reports from several threads: the bar never steps back."""
+    from tpsv.cli import advance
+
+    class Bar:
+        pos = 0
+
+        def update(self, n):
+            assert n > 0
+            self.pos += n
+
+    bar = Bar()
+    step = advance(bar)
+    list(threads.pool("test-progress", 4).map(lambda d: step(d, 10), [3, 1, 5, 2, 5, 4]))
+    assert bar.pos == 5
+    advance(None)(3, 10)  # no bar: nothing

@@ -207,11 +207,15 @@ def progress_bar(ctx: click.Context, length: int, label: str, enabled: bool = Tr
 
 
 def advance(bar):
-    """A ``progress(done, total)`` callback moving ``bar`` (None, no bar shown: does nothing) to ``done``."""
+    """A ``progress(done, total)`` callback moving ``bar`` (None, no bar shown: does nothing) forward to
+    ``done``; it may be called from several threads (a quality search codes several textures at once)."""
+    lock = threading.Lock()
 
     def progress(done, total):
         if bar is not None:
-            bar.update(done - bar.pos)
+            with lock:
+                if done > bar.pos:
+                    bar.update(done - bar.pos)
 
     return progress
 
