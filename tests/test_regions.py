@@ -81,3 +81,15 @@ def test_region_borders_marks_both_sides():
                      [0, 1, 1]], bool)
     assert np.array_equal(region_borders(index), want)
     assert not region_borders(np.zeros((3, 4), int)).any()
+
+
+def test_membership_smoothing_is_scipys_gaussian():
+    """The fitted outlines' smoothing (OpenCV's separable filter) gives scipy's gaussian_filter, nearest
+    edges, to rounding: the outlines do not depend on which library smoothed them."""
+    from scipy import ndimage
+
+    from tpsv.geometry.subpixel import SMOOTH_SIGMA, _gaussian
+
+    m = (np.random.default_rng(2).random((61, 47)) > 0.5).astype(np.float64)
+    for sigma in (SMOOTH_SIGMA, 1.3):
+        assert np.abs(_gaussian(m, sigma) - ndimage.gaussian_filter(m, sigma, mode="nearest")).max() < 1e-12

@@ -376,7 +376,7 @@ class BorderReading:
         """The membership field ``m`` of ``region`` in ``window`` (rows, cols) of the image."""
         # m = w read + (1 - w) smooth, worked out in place (a window may be the whole image)
         sub = comp[window] == region
-        smooth = ndimage.gaussian_filter(sub.astype(np.float64), SMOOTH_SIGMA, mode="nearest")
+        smooth = _gaussian(sub.astype(np.float64), SMOOTH_SIGMA)
         across = self.across[window]
         level = self.level[window]
         trust = self.trust[window]
@@ -395,6 +395,19 @@ class BorderReading:
         out = sub.astype(np.float64)
         np.copyto(out, m, where=ndimage.binary_dilation(across >= 0, iterations=1))
         return out
+
+
+def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
+    """``scipy.ndimage.gaussian_filter(img, sigma, mode="nearest")`` (its kernel: radius ``4 sigma``,
+    normalised) by OpenCV's separable filter, several times faster on a large window; the same
+    values to rounding."""
+    import cv2
+
+    radius = int(4.0 * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    k = np.exp(-0.5 / float(sigma) ** 2 * x * x)
+    k /= k.sum()
+    return cv2.sepFilter2D(img, cv2.CV_64F, k, k, borderType=cv2.BORDER_REPLICATE)
 
 
 def split_pinched(reading: BorderReading, comp: np.ndarray, regions: list[int],
