@@ -47,6 +47,7 @@ from typing import Callable, Iterator, Sequence
 
 from .errors import TpsvError
 from .fileio import display, remove_stale_temporaries
+from .threads import usable_cores
 
 #: Output extension of each command ``batch`` runs.
 EXTENSIONS = {"vectorize": ".tpsv", "render": ".png", "magnify": ".png", "export": ".pdf"}
@@ -310,10 +311,7 @@ def _start_workers(cluster, jobs: int) -> None:
 
 def default_jobs() -> int:
     """The CPU cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
+    return usable_cores()
 
 
 @contextlib.contextmanager

@@ -32,13 +32,18 @@ def pool(purpose: str, threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=max(1, int(threads)), thread_name_prefix=f"tpsv-{purpose}")
 
 
-def host_cores() -> int:
-    """The CPU cores this process may use, no more than ``OMP_NUM_THREADS`` when that is set (a
-    ``tpsv batch`` worker's share of the machine)."""
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the system tells it)."""
     try:
-        n = len(os.sched_getaffinity(0))
+        return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
-        n = os.cpu_count() or 1
+        return os.cpu_count() or 1
+
+
+def host_cores() -> int:
+    """:func:`usable_cores`, no more than ``OMP_NUM_THREADS`` when that is set (a ``tpsv batch``
+    worker's share of the machine)."""
+    n = usable_cores()
     limit = os.environ.get("OMP_NUM_THREADS", "").strip()
     if limit.isdigit() and int(limit) > 0:
         n = min(n, int(limit))

@@ -56,15 +56,23 @@ def residual_texels(rgb: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return out
 
 
+#: (Y, Cb, Cr) -> sRGB, for rows of texels (``residual @ _TO_RGB``).
+_TO_RGB = np.linalg.inv(DETAIL_YCC).T
+
+
+def _residual_rgb(texels: np.ndarray) -> np.ndarray:
+    """The sRGB residual (float64) of some (Y, Cb, Cr) texels."""
+    return ((texels.astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ _TO_RGB
+
+
 def texel_rgb(texels: np.ndarray) -> np.ndarray:
     """The sRGB residual (h, w, 3) float32 of (Y, Cb, Cr) texels (band by band of rows)."""
     h, w = texels.shape[:2]
-    to_rgb = np.linalg.inv(DETAIL_YCC).T
     out = np.empty((h, w, 3), np.float32)
 
     def band(rows):
         a, b = rows
-        out[a:b] = ((texels[a:b].astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ to_rgb
+        out[a:b] = _residual_rgb(texels[a:b])
 
     for_bands(band, h, w)
     return out
@@ -94,12 +102,10 @@ def with_texels(rendered: np.ndarray, texels: np.ndarray) -> np.ndarray:
     """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual."""
     h, w = rendered.shape[:2]
     out = np.empty(np.broadcast_shapes(rendered.shape, texels.shape), np.result_type(rendered, np.float32))
-    to_rgb = np.linalg.inv(DETAIL_YCC).T
 
-    def band(rows):
+    def band(rows):  # (not texel_rgb: a band must not wait on the pool it runs on)
         a, b = rows
-        res = ((texels[a:b].astype(np.float64) - DETAIL_ZERO) / DETAIL_GAIN) @ to_rgb
-        np.clip(rendered[a:b] + res.astype(np.float32), 0.0, 1.0, out=out[a:b])
+        np.clip(rendered[a:b] + _residual_rgb(texels[a:b]).astype(np.float32), 0.0, 1.0, out=out[a:b])
 
     for_bands(band, h, w)
     return out

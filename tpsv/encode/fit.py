@@ -76,7 +76,6 @@ the margins' pixels are fitted twice, so they are kept narrow.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, replace
 
@@ -85,7 +84,7 @@ import numpy as np
 from .. import tps
 from ..color import lab_to_srgb_jacobian, srgb_to_lab
 from ..rendering.pixelmap import pixel_map
-from ..threads import pool as host_pool
+from ..threads import pool as host_pool, usable_cores
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -349,11 +348,7 @@ def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64, wanted: np.ndarray | 
 
 def _threads() -> int:
     """Host threads for the fit's batched numpy work (the cores this process may use, at most 8)."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        n = os.cpu_count() or 1
-    return max(1, min(8, n))
+    return max(1, min(8, usable_cores()))
 
 
 def _pool_map(fn, items):
