@@ -362,6 +362,26 @@ def test_png_writer_memory_follows_its_blocks_not_the_image(monkeypatch):
     assert _traced_peak(write) < W * H * 3 / 4
 
 
+@pytest.mark.parametrize("depth", [8, 16])
+def test_bands_rounded_on_the_device_as_the_host_rounds(depth):
+    """The device's rounding of a band (float64 product, half to even, clipped) is the host's, value for
+    value, at the halves between levels and their neighbours and outside [0, 1]."""
+    from tpsv.gpu import warp
+    from tpsv.gpu.quantize import to_uint
+    from tpsv.image import to_uint8, to_uint16
+
+    top = 2**depth - 1
+    halves = ((np.arange(0, top, max(1, top // 600)) + 0.5) / top).astype(np.float32)
+    v = np.concatenate([halves, np.nextafter(halves, np.float32(1)), np.nextafter(halves, np.float32(0)),
+                        np.float32([-0.1, 1.2, 0.0, 1.0, 1e-12, 1 - 1e-7]),
+                        np.random.default_rng(depth).random(3000, np.float32)])
+    v = np.resize(v, (len(v) // 21 + 1) * 21 * 3).reshape(-1, 21, 3)
+    frame = warp().array(v, dtype=warp().vec3f, device="cpu")
+    got = to_uint(frame, depth, threads=2).numpy()
+    assert got.dtype == (np.uint8 if depth == 8 else np.uint16)
+    assert np.array_equal(got, (to_uint8 if depth == 8 else to_uint16)(v))
+
+
 def test_png_adler32_combine_and_header():
     rng = np.random.default_rng(0)
     data = rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes() + b"\xff" * 70_000

@@ -181,7 +181,7 @@ def render_bands(model, width=None, height=None, scale=None, device: str = "cpu"
         raise TpsvError(f"bands of {depth} bits a sample cannot be rendered (8 or 16)")
     W, H = output_size(model, width, height, scale)
     rounding = to_uint8 if depth == 8 else to_uint16
-    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias, alpha):
+    for y0, rows in _bands(model, W, H, device, kernels, threads, clamp, max_pixels, antialias, alpha, depth):
         yield y0, rounding(rows)
 
 
@@ -212,8 +212,13 @@ def render_png(model, width=None, height=None, scale=None, device: str = "cpu", 
 
 
 def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: int, antialias: bool = True,
-           alpha: bool = False):
-    """``(y0, float32 rows)`` of the ``W x H`` render, in bands of at most ``max_pixels`` pixels."""
+           alpha: bool = False, depth: int | None = None):
+    """``(y0, float32 rows)`` of the ``W x H`` render, in bands of at most ``max_pixels`` pixels.
+
+    With ``depth`` (8 or 16), the bands of an output of more than one are rounded to uint8 or
+    uint16 by the host's rule (:func:`tpsv.image.to_uint8`), the colours on the device
+    (:mod:`tpsv.gpu.quantize`) before they are copied.
+    """
     max_pixels = max(int(max_pixels), 1)
     if W * H <= max_pixels:
         img, _ = _render(model, W, H, None, device, kernels, threads, clamp, timed=False, antialias=antialias,
@@ -222,8 +227,10 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
         return
     from ..gpu import tps as gtps
     from ..gpu.coverage import DeviceBorders
+    from ..gpu.quantize import to_uint
 
     device = resolve_device(device)
+    rounding = to_uint8 if depth == 8 else to_uint16
     rows = max(1, max_pixels // W)
     ks = kernels if kernels is not None else tps.group_kernels(model)
     if ks.grid.shape[0] != len(model.regions):
@@ -246,9 +253,13 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
         opaque, mix = opacity(model, pm.index, None if mix is None else mix.numpy()) if alpha else (None, mix)
         _mix_borders(model, dk, out, mix, threads, clamp, maps.patch_set)
         _add_detail(model, out, pm.index_d, pm.st_d, device, threads, dd)
+        if depth is not None:
+            out = to_uint(out, depth, threads)
         band = out.numpy().reshape(y1 - y0, W, 3)
         del pm, out
-        yield y0, band if opaque is None else np.dstack([band, opaque])
+        if opaque is not None:
+            band = np.dstack([band, opaque if depth is None else rounding(opaque)])
+        yield y0, band
 
 
 def render_timed(model, width=None, height=None, scale=None, device: str = "cpu", repeat: int = 1, threads=None, clamp: bool = True):
