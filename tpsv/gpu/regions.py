@@ -89,6 +89,7 @@ def _fill_rows(
     rw: wp.array(dtype=wp.int32),
     lut: wp.array(dtype=wp.int32),
     rowstart: wp.array(dtype=wp.int64),
+    base: wp.int64,
     xs: wp.array(dtype=wp.float64),
     rs: wp.array(dtype=wp.int32),
     band: int,
@@ -107,7 +108,7 @@ def _fill_rows(
     y = row0 + wp.tid()
     orow = y - out_row0
     width = out.shape[1]
-    o0 = rowstart[y]
+    o0 = rowstart[y] - base
     n = int(0)
     b = y / band
     # bins hold edges in drawing order of their region: the row's crossings come out grouped by region
@@ -185,16 +186,16 @@ def _fill_rows(
 
 
 @wp.kernel
-def _fill_pixels(rowstart: wp.array(dtype=wp.int64), xs: wp.array(dtype=wp.float64), rs: wp.array(dtype=wp.int32),
-                 lut: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.int32), row0: int, out_row0: int,
-                 out: wp.array2d(dtype=wp.int32)):
+def _fill_pixels(rowstart: wp.array(dtype=wp.int64), base: wp.int64, xs: wp.array(dtype=wp.float64),
+                 rs: wp.array(dtype=wp.int32), lut: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.int32), row0: int,
+                 out_row0: int, out: wp.array2d(dtype=wp.int32)):
     """Pixel ``(row0 + i, x)``: the region of its span, else -1; where spans overlap (``spans`` negative),
     the region drawn first among those covering it (the row's few spans, each looked at)."""
     i, x = wp.tid()
     y = row0 + i
     orow = y - out_row0
     ns = spans[orow]
-    o0 = rowstart[y]
+    o0 = rowstart[y] - base
     lab = int(-1)
     if ns < 0:
         first = int(-1)
@@ -269,9 +270,11 @@ def _nearest(cov: wp.array2d(dtype=wp.int32), cov_row0: int, height: int, y: int
 
 @wp.kernel
 def _find_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), height: int,
-               row0: int, search: int, found: wp.array2d(dtype=wp.int32), unresolved: wp.array(dtype=wp.int32)):
-    """The region of uncovered pixel ``(row0 + i, x)`` (thread ``(i, x)``) into ``found`` (a thread a
-    pixel: a wide gap's searches run side by side, not one row's after another)."""
+               row0: int, search: int, found: wp.array2d(dtype=wp.int32), found_row0: int,
+               unresolved: wp.array(dtype=wp.int32)):
+    """The region of uncovered pixel ``(row0 + i, x)`` (thread ``(i, x)``) into ``found`` (whose first row
+    is output row ``found_row0``; a thread a pixel: a wide gap's searches run side by side, not one row's
+    after another)."""
     i, x = wp.tid()
     y = row0 + i
     r = y - cov_row0
@@ -279,21 +282,21 @@ def _find_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(d
         return
     if cov[r, x] < 0:
         lab = _nearest(cov, cov_row0, height, y, x, search)
-        found[y, x] = lab
+        found[y - found_row0, x] = lab
         if lab == UNRESOLVED:
             unresolved[0] = 1
 
 
 @wp.kernel
 def _put_gaps(cov: wp.array2d(dtype=wp.int32), cov_row0: int, n_gap: wp.array(dtype=wp.int32), row0: int,
-              found: wp.array2d(dtype=wp.int32)):
+              found: wp.array2d(dtype=wp.int32), found_row0: int):
     """Write ``found`` into uncovered pixel ``(row0 + i, x)`` (after every search has read the map)."""
     i, x = wp.tid()
     r = row0 + i - cov_row0
     if n_gap[r] == 0:
         return
     if cov[r, x] < 0:
-        cov[r, x] = found[r + cov_row0, x]
+        cov[r, x] = found[r + cov_row0 - found_row0, x]
 
 
 class DeviceOutlines:
@@ -308,6 +311,9 @@ class DeviceOutlines:
         Warp device (``cpu``, ``cuda``, ``cuda:N``).
     threads : int, optional
         Host threads for the CPU device (None: every core).
+    max_gap_bytes : int, optional
+        Host memory the fill of pixels far from every outline may take
+        (``outline.GapFill``; beyond it: :class:`TpsvError`).
 
     Raises
     ------
@@ -316,14 +322,16 @@ class DeviceOutlines:
 
     Notes
     -----
-    Device memory: the edges (44 bytes each, plus 4 per bin they cross),
-    12 bytes per edge crossing of the whole frame (scratch, one slot per
-    row) and, once gaps are filled, one int32 per pixel. Calls for disjoint
-    bands may run at once; calls for the same rows may not (they share the
-    scratch).
+    Device memory: the edges (44 bytes each, plus 4 per bin they cross);
+    for the rows of a call (and :data:`SEARCH` rows each side), 12 bytes per
+    edge crossing (scratch, kept for the next call) and one int32 a pixel
+    for the map, and one more where gaps are filled. A band of rows thus
+    costs memory in proportion to the band, not to the output. Calls may
+    not run at once (they share the scratch).
     """
 
-    def __init__(self, model, width: int, height: int, device: str = "cpu", threads: int | None = None):
+    def __init__(self, model, width: int, height: int, device: str = "cpu", threads: int | None = None,
+                 max_gap_bytes: int | None = None):
         _warp()
         self.device = resolve_device(device)
         self.threads = threads
@@ -335,6 +343,7 @@ class DeviceOutlines:
         self.coverage = cov = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
         self._lut_host = np.asarray(order + [-1], np.int32)
         self._gaps = None
+        self._max_gap_bytes = max_gap_bytes
         self._found = None
         self.n_regions = len(order)
         if cov.empty:
@@ -368,9 +377,16 @@ class DeviceOutlines:
             (g1, i32), (bstart, i32), (e[order_e], i32), (cov._x0, i32), (cov._y0, i32), (cov._w, i32),
             (self._lut_host, i32), (rowstart, wp.int64))
         self._lut, self._rowstart = self._arrays[12], self._arrays[13]
-        n_cross = int(rowstart[-1])
-        self._xs = wp.empty(max(n_cross, 1), dtype=wp.float64, device=dev)
-        self._rs = wp.empty(max(n_cross, 1), dtype=wp.int32, device=dev)
+        self._rowstart_host = rowstart
+        self._xs = self._rs = None  # the crossings' scratch, made for the first call's rows
+
+    def _scratch(self, y0: int, y1: int) -> int:
+        """Scratch for the crossings of rows ``y0 .. y1`` (grown when too small); returns their first slot."""
+        base, need = int(self._rowstart_host[y0]), int(self._rowstart_host[y1] - self._rowstart_host[y0])
+        if self._xs is None or self._xs.shape[0] < need:
+            self._xs = wp.empty(max(need, 1), dtype=wp.float64, device=self.device)
+            self._rs = wp.empty(max(need, 1), dtype=wp.int32, device=self.device)
+        return base
 
     def coverage_device(self, y0: int = 0, y1: int | None = None) -> wp.array:
         """Rows ``y0 <= y < y1`` of the coverage: region index, ``-1`` where no polygon covers the pixel.
@@ -392,13 +408,14 @@ class DeviceOutlines:
             return out, n_gap
 
         spans = wp.empty(y1 - y0, dtype=wp.int32, device=dev)
+        base = wp.int64(self._scratch(y0, y1))
 
         def launch(a, b):
             wp.launch(_fill_rows, dim=b - a,
-                      inputs=self._arrays + [self._xs, self._rs, BAND, y0 + a, y0, out, n_gap, spans], device=dev)
+                      inputs=self._arrays + [base, self._xs, self._rs, BAND, y0 + a, y0, out, n_gap, spans], device=dev)
 
         def fill(a, b):
-            wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._rowstart, self._xs, self._rs, self._lut,
+            wp.launch(_fill_pixels, dim=(b - a, W), inputs=[self._rowstart, base, self._xs, self._rs, self._lut,
                                                             spans, y0 + a, y0, out], device=dev)
 
         _launch_banded(_fill_rows, y1 - y0, (y1 - y0) * W, dev, self.threads, launch)
@@ -432,18 +449,18 @@ class DeviceOutlines:
         # (on the CPU the two launches cost 12 ns a pixel for nothing, 3 ms of a 512 x 512 render)
         if not n_gap.numpy()[y0 - c0:y1 - c0].any():
             return out
-        if self._found is None:
-            # the whole frame's rows (only uncovered pixels are written and read), so that bands share it
-            self._found = wp.empty((H, W), dtype=wp.int32, device=dev)
+        if self._found is None or tuple(self._found.shape) != (y1 - y0, W):
+            # the call's rows (only uncovered pixels are written and read), kept for the next frame
+            self._found = wp.empty((y1 - y0, W), dtype=wp.int32, device=dev)
         found = self._found
         unresolved = wp.zeros(1, dtype=wp.int32, device=dev)
 
         def find(a, b):
-            wp.launch(_find_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, unresolved],
+            wp.launch(_find_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, H, y0 + a, SEARCH, found, y0, unresolved],
                       device=dev)
 
         def put(a, b):
-            wp.launch(_put_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, y0 + a, found], device=dev)
+            wp.launch(_put_gaps, dim=(b - a, W), inputs=[cov, c0, n_gap, y0 + a, found, y0], device=dev)
 
         _launch_banded(_find_gaps, y1 - y0, (y1 - y0) * W, dev, self.threads, find)
         _launch_banded(_put_gaps, y1 - y0, (y1 - y0) * W, dev, self.threads, put)
@@ -466,7 +483,7 @@ class DeviceOutlines:
     def _resolve(self, out, y0):
         """Fill the pixels the device left unresolved exactly as the host does (``outline.GapFill``)."""
         if self._gaps is None:
-            self._gaps = outline.GapFill(self.coverage, band_rows=256)
+            self._gaps = outline.GapFill(self.coverage, band_rows=256, max_bytes=self._max_gap_bytes)
         idx = out.numpy()
         miss = idx == UNRESOLVED
         host = np.full(idx.shape, -1, np.int32)

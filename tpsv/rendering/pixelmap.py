@@ -217,12 +217,11 @@ def pixel_map(model, width: int | None = None, height: int | None = None, device
 class BandMaps:
     """Pixel maps of bands of output rows, identical to the rows of :func:`pixel_map` (tiled rendering).
 
-    Everything that does not depend on the band is prepared once: the edges of
-    every outline (``outline.Coverage``), the region of every pixel no
-    outline covers (``outline.GapFill``, one pass over the coverage; the same
-    labels as the distance transform of :func:`region_index`), and the
-    patches on the device. :meth:`band` then costs memory in proportion to the
-    band only.
+    Everything that does not depend on the band is prepared once: the
+    outlines' edges on the device (:class:`tpsv.gpu.regions.DeviceOutlines`,
+    whose bands are the rows of the whole frame's map) and the patches.
+    :meth:`band` then costs memory in proportion to the band only, and its
+    region map never leaves the device.
 
     Parameters
     ----------
@@ -231,46 +230,38 @@ class BandMaps:
         Output size.
     device : str
         Warp device.
-    band_rows : int
-        Rows per coverage read while preparing.
     max_gap_bytes : int, optional
-        Refuse outputs whose uncovered pixels need more memory than this
-        (``outline.GapFill``).
+        Refuse outputs whose pixels far from every outline need more host
+        memory than this (``outline.GapFill``).
+    threads : int, optional
+        Host threads for the CPU device.
     """
 
-    def __init__(self, model, width: int, height: int, device: str = "cpu", band_rows: int = 256,
-                 max_gap_bytes: int | None = None):
+    def __init__(self, model, width: int, height: int, device: str = "cpu", max_gap_bytes: int | None = None,
+                 threads: int | None = None):
         from ..gpu.patchmap import PatchSet
+        from ..gpu.regions import DeviceOutlines
 
         self.width, self.height = int(width), int(height)
         self.device = device
         model = curves.as_drawn(model, self.width, self.height)
-        order = draw_order(model)
-        if order == list(range(len(model.regions))):
-            self._lut, regions = None, model.regions
-        else:
-            self._lut, regions = np.asarray(order + [-1], np.int32), [model.regions[r] for r in order]
-        self.coverage = outline.Coverage(regions, self.width, self.height, (model.width, model.height))
-        self.gaps = outline.GapFill(self.coverage, band_rows, max_gap_bytes)
+        self.outlines = DeviceOutlines(model, self.width, self.height, device, threads, max_gap_bytes)
         self.patch_set = PatchSet.build([r.patch for r in model.regions], device)
         self._src = (model.width, model.height)
 
     def index(self, a: int, b: int) -> np.ndarray:
         """Rows ``a <= y < b`` of :func:`region_index`: ndarray (b - a, width) int32."""
-        idx = self.gaps.apply(self.coverage.rows(a, b), a)
-        return idx if self._lut is None else self._lut[idx]
+        return self.outlines.index_device(a, b).numpy()
 
     def band(self, a: int, b: int) -> PixelMap:
         """The pixel map of rows ``a <= y < b``: equal to those rows of :func:`pixel_map`."""
         from ..gpu.patchmap import inverse_map
 
-        wp = warp()
-        idx = np.ascontiguousarray(self.index(a, b), np.int32)
-        index_d = wp.array(idx, dtype=wp.int32, device=self.device)
+        index_d = self.outlines.index_device(a, b)
         # the whole frame's kernel with a row offset: the same sample points and code
         st = inverse_map(None, index_d, self._src, patch_set=self.patch_set,
                          out_size=(self.width, self.height), row0=a)
-        return PixelMap(index_d=index_d, st_d=st, _index=idx)
+        return PixelMap(index_d=index_d, st_d=st)
 
 
 __all__ = ["BandMaps", "FRONT_KEY", "PixelMap", "draw_order", "no_tick", "pixel_map", "region_index"]

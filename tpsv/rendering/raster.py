@@ -52,9 +52,6 @@ from .borders import BorderMix
 from .pixelmap import BandMaps, no_tick, pixel_map
 
 from .limits import MAX_ARRAY_PIXELS, MAX_PIXELS, MAX_SIDE, MEMORY_BUDGET, ONE_PIECE_PIXELS, TILE_PIXELS
-#: Least pixels of coverage read at a time while preparing a banded render
-#: (``outline.GapFill``, about 16 bytes a pixel; otherwise a band's rows).
-_PREP_PIXELS = 1 << 18
 
 
 def output_size(model, width=None, height=None, scale=None) -> tuple[int, int]:
@@ -236,7 +233,7 @@ def _bands(model, W: int, H: int, device, kernels, threads, clamp, max_pixels: i
     if ks.grid.shape[0] != len(model.regions):
         raise TpsvError("the kernel set does not belong to this model")
     drawn = curves.as_drawn(model, W, H)
-    maps = BandMaps(drawn, W, H, device, band_rows=max(rows, _PREP_PIXELS // W), max_gap_bytes=MEMORY_BUDGET // 4)
+    maps = BandMaps(drawn, W, H, device, max_gap_bytes=MEMORY_BUDGET // 4, threads=threads)
     borders = DeviceBorders(drawn, W, H, device) if antialias else None
     dk = gtps.solve(gtps.upload(ks, device), threads=threads)
     dd = device_detail(model, device)
