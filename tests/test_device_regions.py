@@ -12,7 +12,9 @@ from tpsv.geometry import outline
 from tpsv.geometry.regions import build_regions
 from tpsv.gpu.regions import SEARCH, DeviceOutlines
 from tpsv.model import Features, Model, Params, Region
+from tpsv.rendering import raster
 from tpsv.rendering.pixelmap import FRONT_KEY, region_index
+from tpsv.rendering.raster import render
 
 from conftest import rect_patch
 
@@ -157,6 +159,18 @@ def test_far_gaps_fall_back_to_the_host():
     assert max(W, H) > 4 * SEARCH
     dev = check(m, W, H)
     assert np.array_equal(np.concatenate([dev.index(a, min(a + 25, H)) for a in range(0, H, 25)]), dev.index())
+
+
+def test_far_gaps_in_bands_equal_the_frame_and_their_memory_is_bounded():
+    """A banded render of a canvas mostly far from any outline: the bands are the one-piece render,
+    and the host's fill of the far gaps refuses to pass its memory bound (one sentence)."""
+    m = sparse_model()
+    W, H = size_at(m, 3.7)
+    whole = render(m, width=W, height=H)
+    bands = [rows for _, rows in raster._bands(m, W, H, "cpu", None, None, True, W * 9)]
+    assert np.array_equal(np.concatenate(bands), whole)
+    with pytest.raises(TpsvError, match="outside every region than tpsv can fill in bounded memory"):
+        DeviceOutlines(m, W, H, "cpu", max_gap_bytes=1000).index(0, 10)
 
 
 def test_nothing_covered_and_errors():
