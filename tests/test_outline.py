@@ -119,6 +119,21 @@ def test_single_pixel_is_diamond():
     assert _inside(polys, np.array([[5.5, 4.5]])).all()
 
 
+def test_square_corners_are_traced_square():
+    """Corners between straight runs of pixel edges are the pixel corners, not 45-degree cuts that
+    let the simplification slant the sides; a staircase keeps its cuts."""
+    rect = np.zeros((12, 14), bool)
+    rect[2:8, 3:11] = True
+    assert sorted(map(tuple, trace_outline(rect)[0].tolist())) == [(3, 2), (3, 8), (11, 2), (11, 8)]
+    ell = rect.copy()
+    ell[5:8, 7:11] = False  # a concave corner at (7, 5)
+    assert sorted(map(tuple, trace_outline(ell)[0].tolist())) == [(3, 2), (3, 8), (7, 5), (7, 8), (11, 2), (11, 5)]
+    stairs = np.eye(6, dtype=bool) | np.eye(6, k=1, dtype=bool)
+    (poly,) = trace_outline(stairs)
+    assert not np.all(poly == np.round(poly))  # cut corners: half-integer vertices
+    assert (_fill_polys(stairs.shape, [poly]).astype(bool) == stairs).all()
+
+
 def test_empty_mask_errors():
     with pytest.raises(TpsvError):
         trace_outline(np.zeros((4, 4), bool))
