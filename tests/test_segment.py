@@ -117,6 +117,21 @@ def test_segment_auto_keeps_shapes_on_a_gradient_whole(seed):
         assert iou > 0.7, (t, iou)
 
 
+@pytest.mark.parametrize("seed", [0, 2])
+def test_segment_auto_merges_side_by_side_as_one_after_the_other(seed, monkeypatch):
+    """The Ward and the boundary merges run on two host threads: the same labels as on one."""
+    from tpsv.bench.shapes import shapes
+    from tpsv.geometry import segment
+
+    rgb = np.round(shapes(96, 1, seed)[0] * 255).astype(np.uint8)
+    photo = np.random.default_rng(seed).integers(0, 256, (64, 80, 3), dtype=np.uint8)
+    both = [segment_auto(rgb), segment_auto(photo, n_regions=5)]
+    monkeypatch.setattr(segment, "host_cores", lambda: 1)
+    one = [segment_auto(rgb), segment_auto(photo, n_regions=5)]
+    for a, b in zip(both, one):
+        assert np.array_equal(a, b)
+
+
 def test_fill_residual_is_zero_for_affine_fills_and_grows_with_a_wrong_cut():
     from tpsv.geometry.segment import fill_residual
 

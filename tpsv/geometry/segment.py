@@ -16,6 +16,7 @@ from skimage.measure import label as cc_label
 from skimage.segmentation import find_boundaries, random_walker, slic
 
 from ..errors import TpsvError
+from ..threads import host_cores, pool
 from .bands import lab_image, row_bands
 
 
@@ -630,10 +631,20 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     sp, n = _superpixels(rgb, lab)
     if n <= 1:
         return np.zeros((H, W), np.int32)
-    ward = _merged(sp, n, lab, seed, n_regions, boundary=False)
-    steps = _merged(sp, n, lab, seed, n_regions, boundary=True)
-    score = lambda lbl: fill_residual(lab, lbl) * (1.0 + REGION_COST * (int(lbl.max()) + 1))  # noqa: E731
-    return steps if score(steps) <= FILL_GAIN * score(ward) else ward
+
+    def merged_and_scored(boundary: bool):
+        labels = _merged(sp, n, lab, seed, n_regions, boundary=boundary)
+        return labels, fill_residual(lab, labels) * (1.0 + REGION_COST * (int(labels.max()) + 1))
+
+    # the two merges are independent: side by side on two host threads (their numpy passes over the
+    # pixels release the interpreter; the same labels as one after the other)
+    if host_cores() > 1:
+        ward_job = pool("segment", 2).submit(merged_and_scored, False)
+        steps, steps_score = merged_and_scored(True)
+        ward, ward_score = ward_job.result()
+    else:
+        (ward, ward_score), (steps, steps_score) = merged_and_scored(False), merged_and_scored(True)
+    return steps if steps_score <= FILL_GAIN * ward_score else ward
 
 
 # --------------------------------------------------------------------------- strokes
