@@ -273,6 +273,18 @@ def test_a_large_picture_gets_its_superpixels_from_a_smaller_copy_on_its_own_edg
     assert _mixed_share(blocky[0], inside) > 3 * _mixed_share(small, inside)
 
 
+def test_refine_gives_the_same_superpixels_in_chunks_on_threads(monkeypatch):
+    """The border pixels reassigned a chunk at a time on a few threads: the same map as in one go."""
+    from tpsv.geometry import segment
+
+    rgb, _ = _disc_picture()
+    monkeypatch.setattr(segment, "SLIC_PIXELS", 64 * 64)
+    whole = segment._superpixels(rgb)
+    monkeypatch.setattr(segment, "REFINE_CHUNK", 97)
+    chunked = segment._superpixels(rgb)
+    assert whole[1] == chunked[1] and np.array_equal(whole[0], chunked[0])
+
+
 def test_segment_auto_keeps_the_disc_whole_from_a_smaller_copy(monkeypatch):
     from tpsv.geometry import segment
 

@@ -17,7 +17,7 @@ from skimage.segmentation import find_boundaries, random_walker, slic
 
 from ..errors import TpsvError
 from ..threads import host_cores, pool
-from .bands import lab_image, row_bands
+from .bands import for_bands, lab_image, row_bands
 
 
 def default_min_size(shape: tuple[int, int]) -> int:
@@ -204,6 +204,8 @@ AUTO_COUNTS = (4, 12)
 #: (most of its 17 s segmentation on 2 cores; 11 s from a 4x smaller copy) place borders that the
 #: smaller copy places as well (docs/DESIGN.md, "Automatic regions").
 SLIC_PIXELS = 1 << 20
+#: Border pixels :func:`_refine` reassigns at a time (a chunk's temporaries: about 100 bytes each).
+REFINE_CHUNK = 1 << 17
 #: SLIC's compactness (``m``): colour distance against spatial distance over the grid step.
 COMPACTNESS = 10.0
 
@@ -262,8 +264,10 @@ def _refine(sp: np.ndarray, n: int, lab: np.ndarray, reach: int, step: float) ->
     code = sp.astype(np.uint16)  # n <= MAX_SUPERPIXELS: OpenCV's max and min filters take 16 bits
     ys, xs = np.nonzero(cv2.dilate(code, kernel) != cv2.erode(code, kernel))
     out = sp.copy()
-    for i in range(0, ys.size, 1 << 20):  # a million pixels at a time: about 100 MB of temporaries
-        y, x = ys[i:i + (1 << 20)], xs[i:i + (1 << 20)]
+
+    def chunk(rows: tuple[int, int]) -> None:
+        # each listed pixel on its own: chunks run on a few threads (about 12 MB of temporaries each)
+        y, x = ys[rows[0]:rows[1]], xs[rows[0]:rows[1]]
         colour = lab[y, x].astype(np.float64)
         best = np.full(y.size, np.inf)
         pick = sp[y, x].copy()
@@ -276,6 +280,8 @@ def _refine(sp: np.ndarray, n: int, lab: np.ndarray, reach: int, step: float) ->
                 best[better] = d[better]
                 pick[better] = c[better]
         out[y, x] = pick
+
+    for_bands(chunk, ys.size, 1, pixels=REFINE_CHUNK)
     return out
 
 
