@@ -133,25 +133,55 @@ def edge_widths(rgb: np.ndarray, regions, index: np.ndarray) -> np.ndarray:
     return _pair_widths(r, len(regions))
 
 
+def gradient_magnitude(rgb: np.ndarray) -> np.ndarray:
+    """The colour gradient's magnitude at every pixel: ``sqrt(sum over channels of sobel_y^2 + sobel_x^2) / 8``.
+
+    SciPy's ``ndimage.sobel`` (mode ``reflect``) as OpenCV's ``Sobel`` computes it
+    (``BORDER_REFLECT``), over bands of rows on a few host threads, each band
+    read with the row either side: the same values as the whole image at once
+    (exactly for pictures of 8- or 16-bit samples, whose sums of a few integer
+    multiples are exact in float64; within 1e-15 for any floats).
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float
+
+    Returns
+    -------
+    ndarray (H, W) float64
+    """
+    # (imported here: reading a file's blur map, `tpsv info`, needs no image filters)
+    import cv2
+
+    from .bands import for_bands
+
+    H = rgb.shape[0]
+    grad = np.empty(rgb.shape[:2])
+
+    def band(rows: tuple[int, int]) -> None:
+        a, b = rows
+        lo, hi = max(a - 1, 0), min(b + 1, H)
+        acc = np.zeros((hi - lo, rgb.shape[1]))
+        for k in range(3):
+            channel = np.ascontiguousarray(rgb[lo:hi, :, k], np.float64)
+            term = cv2.Sobel(channel, cv2.CV_64F, 0, 1, ksize=3, borderType=cv2.BORDER_REFLECT) ** 2
+            term += cv2.Sobel(channel, cv2.CV_64F, 1, 0, ksize=3, borderType=cv2.BORDER_REFLECT) ** 2
+            acc += term
+        part = acc[a - lo:a - lo + (b - a)]
+        grad[a:b] = np.sqrt(part) / 8.0
+
+    for_bands(band, H, rgb.shape[1])
+    return grad
+
+
 def _readings(rgb: np.ndarray, regions, index: np.ndarray):
     """The readings at points every pixel along the shared borders (module doc), or None without borders:
     ``(f, a, b, ok, placed, sigma_eff, offset)``."""
-    # (imported here: reading a file's blur map, `tpsv info`, needs none of SciPy's image filters)
-    from scipy import ndimage
-
     rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
     a, b, p0, p1 = _shared_edges(regions)
     if not len(a):
         return None
-    grad = np.zeros(rgb.shape[:2])
-    for k in range(3):
-        channel = rgb[..., k].astype(np.float64)
-        term = ndimage.sobel(channel, 0) ** 2
-        term += ndimage.sobel(channel, 1) ** 2
-        grad += term
-    del channel, term
-    grad = np.sqrt(grad, out=grad)
-    grad /= 8.0
+    grad = gradient_magnitude(rgb)
     seg = p1 - p0
     length = np.hypot(*seg.T)
     n_pts = np.maximum(1, np.floor(length)).astype(np.int64)
