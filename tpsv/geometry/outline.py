@@ -50,9 +50,10 @@ prepared once, in its region's own frame, so the arithmetic is the
 region-by-region fill's), for any band of rows, in memory bounded by the
 band and :data:`FILL_CROSSINGS_PER_BAND`. The distance transform needs the
 whole image; :class:`GapFill` computes the same labels (the same chamfer
-transform, tie for tie) from a sparse record of the uncovered pixels, so that
-a render in bands (``tpsv.rendering.raster.render_bands``) gets every pixel of
-the whole-image fill.
+transform, tie for tie) from a sparse record of the uncovered pixels, in
+memory that grows with them, not with the image: the device's region map
+(``tpsv.gpu.regions``, a whole frame or a band of a large render) hands it
+the pixels farther than its search from every outline.
 """
 
 from __future__ import annotations
