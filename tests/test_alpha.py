@@ -106,14 +106,18 @@ def test_opacity_is_the_coverage_of_the_opaque_side(encoded):
         assert (kept[p] == 0.0) if o else (p not in kept)
 
 
-def test_bands_give_the_one_piece_rgba(encoded):
+@pytest.mark.parametrize("depth", [8, 16])
+def test_bands_give_the_one_piece_rgba(encoded, depth):
+    """Bands rounded on the device (colours) and on the host (alpha): the one-piece RGBA render rounded."""
+    from tpsv.image import to_uint16
+
     _, model = encoded
     whole = raster.render(model, scale=3, alpha=True)
-    bands = list(raster.render_bands(model, scale=3, max_pixels=120 * 7, alpha=True))
+    bands = list(raster.render_bands(model, scale=3, max_pixels=120 * 7, alpha=True, depth=depth))
     assert len(bands) > 3
     rows = np.concatenate([r for _, r in bands])
-    assert rows.shape == whole.shape and rows.dtype == np.uint8
-    assert np.array_equal(rows, to_uint8(whole))
+    assert rows.shape == whole.shape and rows.dtype == (np.uint8 if depth == 8 else np.uint16)
+    assert np.array_equal(rows, (to_uint8 if depth == 8 else to_uint16)(whole))
 
 
 def test_without_alpha_the_render_is_rgb_and_opaque_models_are_opaque(encoded):
