@@ -7,6 +7,7 @@ import pytest
 
 from tpsv.edit.common import feature_xy
 from tpsv.errors import TpsvError
+from tpsv.geometry import subpixel
 from tpsv.geometry.regions import build_regions, region_borders, to_patch_space, to_pixel_space
 from tpsv.model import GRADATION, Features, Model
 
@@ -93,3 +94,20 @@ def test_membership_smoothing_is_scipys_gaussian():
     m = (np.random.default_rng(2).random((61, 47)) > 0.5).astype(np.float64)
     for sigma in (SMOOTH_SIGMA, 1.3):
         assert np.abs(_gaussian(m, sigma) - ndimage.gaussian_filter(m, sigma, mode="nearest")).max() < 1e-12
+
+
+def test_four_regions_meeting_crosswise_share_the_pixel_corner():
+    """Where four regions meet crosswise (a grid) the fitted outlines all pass through the pixel
+    corner, with no point of their own near it (the diagonal pair's contours used to cut across
+    the saddle each their own way: a notch and a slanted border when magnified)."""
+    labels = np.zeros((32, 32), np.int32)
+    labels[:16, 16:], labels[16:, :16], labels[16:, 16:] = 1, 2, 3
+    colours = np.array([[0.8, 0.25, 0.15], [0.15, 0.35, 0.85], [0.25, 0.8, 0.25], [0.9, 0.85, 0.25]], np.float32)
+    rgb = colours[labels]
+    regions, index = build_regions(labels, rgb=rgb)
+    assert np.array_equal(index, labels)
+    for r in regions:
+        pts = np.concatenate(r.outline)
+        at = np.abs(pts - 16.0).max(axis=1)
+        assert (at == 0).sum() == 1, (r.label, pts[at < 1].tolist())  # the corner, once
+        assert not ((at > 0) & (at <= subpixel.CROSSING)).any(), pts[at < 1].tolist()

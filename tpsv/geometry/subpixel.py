@@ -892,6 +892,7 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
         flat, tols, changed = _close_cycles(flat, tols, W, H)
         if not changed:
             break
+    flat, tols = _pin_crossings(flat, tols, comp)
     flat, tols = _sharpen_corners(flat, tols, W, H, tolerance)
     simple = _simplify_together(flat, tols)
     # where only the smoothed mask speaks, the border is known to half a pixel: a coarser grid there
@@ -900,6 +901,56 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
     done = [None if polys is None else _finish([next(simple) for _ in polys], comp, r, box)
             for polys, r, box in zip(raw, regions, boxes)]
     return _drop_orphan_holes(done, boxes)
+
+
+#: How near (px, each axis) a contour point must be to a crossing of four regions to be put on it.
+CROSSING = 0.75
+
+
+def crossings(comp: np.ndarray) -> np.ndarray:
+    """Pixel corners ``(x, y)`` (k, 2) where four regions meet crosswise: every side of the corner a border.
+
+    Parameters
+    ----------
+    comp : ndarray (H, W) int
+        Region of every pixel.
+    """
+    a, b, c, d = comp[:-1, :-1], comp[:-1, 1:], comp[1:, :-1], comp[1:, 1:]
+    ys, xs = np.nonzero((a != b) & (a != c) & (d != b) & (d != c))
+    return np.stack([xs + 1.0, ys + 1.0], axis=1)
+
+
+def _pin_crossings(polys: list[np.ndarray], tols: list[np.ndarray], comp: np.ndarray):
+    """Every contour point within :data:`CROSSING` px of a crossing of four regions put on the crossing.
+
+    Where four regions meet crosswise (a grid, a checkerboard) the two
+    diagonal regions touch at a point only: the membership fields form a
+    saddle there, and the contours of the diagonal pair cut across it each
+    their own way, a loop no junction rule closes (a notch and a slanted
+    border when magnified). The crossing is the pixel corner, as the label
+    map has it; consecutive points that land on it become one.
+    """
+    pts = crossings(comp)
+    if not len(pts):
+        return polys, tols
+    out_p, out_t = [], []
+    for p, t in zip(polys, tols):
+        # the nearest crossing of each point (crossings are whole pixel corners: look the point's up)
+        cx, cy = np.rint(p[:, 0]), np.rint(p[:, 1])
+        near = (np.abs(p[:, 0] - cx) <= CROSSING) & (np.abs(p[:, 1] - cy) <= CROSSING)
+        if near.any():
+            keys = set(map(tuple, pts.tolist()))
+            hit = near.copy()
+            hit[near] = [(x, y) in keys for x, y in zip(cx[near].tolist(), cy[near].tolist())]
+            if hit.any():
+                p = p.copy()
+                p[hit, 0], p[hit, 1] = cx[hit], cy[hit]
+                keep = np.any(p != np.roll(p, 1, axis=0), axis=1)
+                if keep.any():
+                    p, t = p[keep], t[keep]
+        out_p.append(p)
+        out_t.append(t)
+    return out_p, out_t
 
 
 #: How far (px) a region filling a hole may reach beyond the hole's bounding box (its fitted outline, or its
