@@ -17,7 +17,11 @@ hardly shows, and one whose outline lies, in RMS, more than
 outline does not follow; the label map alone places both, to about half a
 pixel. Rendered sharp, magnification would show a cut-out edge where the
 photo has none (a label map drawn a pixel off a soft nose, at 4x), so both
-get at least :data:`UNSURE_SIGMA`.
+get at least :data:`UNSURE_SIGMA`. On a border of at most
+:data:`SHORT_BORDER` points most points lie near a junction, whose other
+borders reach the gradient read (a grid of sharp squares read as misplaced):
+there only the points whose border runs on :data:`JUNCTION_REACH` px both
+ways, with its two regions either side, are read.
 
 One width per pair cannot suit a border that follows an edge in one stretch
 and cuts across a flat area in the next; magnified, the flat stretch shows a
@@ -37,6 +41,10 @@ PROBE = 4.0
 #: Blur of a sharp, box-sampled step as this reading sees it (px; synthetic edges at 0, 0.3 and 0.79 rad:
 #: sharp steps then read 0-0.28 px, steps blurred by 0.5, 1, 1.5, 2, 3 px read 0.44-0.5, 0.94-1.0, 1.44, 1.88, 2.38).
 S0 = 0.85
+#: Points (one a pixel) of a border short enough for its junctions to matter, and how far along it
+#: (px) another region makes a point of it unreadable.
+SHORT_BORDER = 16
+JUNCTION_REACH = 1.5
 #: Least colour step (sRGB, Euclidean) a point needs to be read.
 MIN_CONTRAST = 0.16
 #: Least points a border needs to get a width.
@@ -205,6 +213,17 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray):
         (region_at(f - normal) == b)
     ok &= (side_a.min(1) >= 0) & (side_b.min(1) >= 0) & (side_a[:, 0] <= W) & (side_b[:, 0] <= W) & \
         (side_a[:, 1] <= H) & (side_b[:, 1] <= H)
+    # on a short border most points lie near its ends, where the junction's other borders reach the
+    # gradient read: there only points whose border runs on both ways are read
+    _, pair, count = np.unique(np.stack([a, b], 1), axis=0, return_inverse=True, return_counts=True)
+    short = count[pair.reshape(-1)] <= SHORT_BORDER
+    if short.any():
+        tangent = np.stack([normal[:, 1], -normal[:, 0]], 1)
+        runs_on = np.ones(len(a), bool)
+        for along in (-JUNCTION_REACH, JUNCTION_REACH):
+            for side, want in ((0.5, a), (-0.5, b)):
+                runs_on &= region_at(f + along * tangent + side * normal) == want
+        ok &= runs_on | ~short
     contrast = np.hypot.reduce(_bilinear(rgb, side_a) - _bilinear(rgb, side_b), axis=1)
     # the gradient across the border, within 2 px of it
     steps = np.arange(-2.0, 2.01, 0.25)
