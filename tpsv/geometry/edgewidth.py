@@ -215,8 +215,9 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray):
         (side_a[:, 1] <= H) & (side_b[:, 1] <= H)
     # on a short border most points lie near its ends, where the junction's other borders reach the
     # gradient read: there only points whose border runs on both ways are read
-    _, pair, count = np.unique(np.stack([a, b], 1), axis=0, return_inverse=True, return_counts=True)
-    short = count[pair.reshape(-1)] <= SHORT_BORDER
+    key = a.astype(np.int64) * (int(b.max(initial=0)) + 1) + b
+    _, pair, count = np.unique(key, return_inverse=True, return_counts=True)
+    short = count[pair] <= SHORT_BORDER
     if short.any():
         tangent = np.stack([normal[:, 1], -normal[:, 0]], 1)
         runs_on = np.ones(len(a), bool)
