@@ -903,8 +903,9 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
     return _drop_orphan_holes(done, boxes)
 
 
-#: How near (px, each axis) a contour point must be to a crossing of four regions to be put on it.
-CROSSING = 0.75
+#: How near (px, each axis) a contour point must be to a crossing of four regions to be put on it: the
+#: crossing is then the pixel corner nearest the point.
+CROSSING = 0.5
 
 
 def crossings(comp: np.ndarray) -> np.ndarray:
@@ -921,7 +922,7 @@ def crossings(comp: np.ndarray) -> np.ndarray:
 
 
 def _pin_crossings(polys: list[np.ndarray], tols: list[np.ndarray], comp: np.ndarray):
-    """Every contour point within :data:`CROSSING` px of a crossing of four regions put on the crossing.
+    """Every contour point within :data:`CROSSING` px (each axis) of a crossing of four regions put on it.
 
     Where four regions meet crosswise (a grid, a checkerboard) the two
     diagonal regions touch at a point only: the membership fields form a
@@ -933,21 +934,18 @@ def _pin_crossings(polys: list[np.ndarray], tols: list[np.ndarray], comp: np.nda
     pts = crossings(comp)
     if not len(pts):
         return polys, tols
+    row = comp.shape[1] + 1
+    known = pts[:, 1].astype(np.int64) * row + pts[:, 0].astype(np.int64)
     out_p, out_t = [], []
     for p, t in zip(polys, tols):
-        # the nearest crossing of each point (crossings are whole pixel corners: look the point's up)
-        cx, cy = np.rint(p[:, 0]), np.rint(p[:, 1])
-        near = (np.abs(p[:, 0] - cx) <= CROSSING) & (np.abs(p[:, 1] - cy) <= CROSSING)
-        if near.any():
-            keys = set(map(tuple, pts.tolist()))
-            hit = near.copy()
-            hit[near] = [(x, y) in keys for x, y in zip(cx[near].tolist(), cy[near].tolist())]
-            if hit.any():
-                p = p.copy()
-                p[hit, 0], p[hit, 1] = cx[hit], cy[hit]
-                keep = np.any(p != np.roll(p, 1, axis=0), axis=1)
-                if keep.any():
-                    p, t = p[keep], t[keep]
+        corner = np.rint(p)  # each point's nearest pixel corner (contour points lie within the frame)
+        hit = np.isin(corner[:, 1].astype(np.int64) * row + corner[:, 0].astype(np.int64), known)
+        if hit.any():
+            p = p.copy()
+            p[hit] = corner[hit]
+            keep = np.any(p != np.roll(p, 1, axis=0), axis=1)
+            if keep.any():
+                p, t = p[keep], t[keep]
         out_p.append(p)
         out_t.append(t)
     return out_p, out_t
