@@ -10,6 +10,8 @@ the host as 3 (6) bytes a pixel instead of 12, and the host does not round it
 
 from __future__ import annotations
 
+from typing import Any
+
 import warp as wp
 
 from .rasterise import _launch_banded
@@ -18,25 +20,13 @@ from .rasterise import _launch_banded
 wp.set_module_options({"enable_backward": False, "fast_math": False})
 
 
-@wp.func
-def _level(v: wp.float32, top: wp.float64):
-    return wp.min(wp.max(wp.rint(wp.float64(v) * top), wp.float64(0.0)), top)
-
-
 @wp.kernel
-def _to_u8(frame: wp.array2d(dtype=wp.vec3f), row0: int, out: wp.array3d(dtype=wp.uint8)):
+def _to_uint(frame: wp.array2d(dtype=wp.vec3f), row0: int, top: wp.float64, out: wp.array3d(dtype=Any)):
     y, x = wp.tid()
     c = frame[row0 + y, x]
     for k in range(3):
-        out[y, x, k] = wp.uint8(wp.int32(_level(c[k], wp.float64(255.0))))
-
-
-@wp.kernel
-def _to_u16(frame: wp.array2d(dtype=wp.vec3f), row0: int, out: wp.array3d(dtype=wp.uint16)):
-    y, x = wp.tid()
-    c = frame[row0 + y, x]
-    for k in range(3):
-        out[y, x, k] = wp.uint16(wp.int32(_level(c[k], wp.float64(65535.0))))
+        level = wp.min(wp.max(wp.rint(wp.float64(c[k]) * top), wp.float64(0.0)), top)
+        out[y, x, k] = out.dtype(wp.int32(level))
 
 
 def to_uint(frame: wp.array, depth: int, threads: int | None = None) -> wp.array:
@@ -55,14 +45,14 @@ def to_uint(frame: wp.array, depth: int, threads: int | None = None) -> wp.array
     -------
     wp.array3d(uint8 or uint16)
     """
-    kernel, dtype = {8: (_to_u8, wp.uint8), 16: (_to_u16, wp.uint16)}[int(depth)]
+    dtype, top = {8: (wp.uint8, 255.0), 16: (wp.uint16, 65535.0)}[int(depth)]
     H, W = int(frame.shape[0]), int(frame.shape[1])
     out = wp.empty((H, W, 3), dtype=dtype, device=frame.device)
 
     def launch(r0, r1):
-        wp.launch(kernel, dim=(r1 - r0, W), inputs=[frame, r0, out[r0:r1]], device=frame.device)
+        wp.launch(_to_uint, dim=(r1 - r0, W), inputs=[frame, r0, wp.float64(top), out[r0:r1]], device=frame.device)
 
-    _launch_banded(kernel, H, H * W, str(frame.device), threads, launch)
+    _launch_banded(_to_uint, H, H * W, str(frame.device), threads, launch)
     return out
 
 

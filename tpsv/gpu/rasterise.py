@@ -56,8 +56,7 @@ HOST_SECONDS = {
     "_rasterise": 330e-9, "_rasterise_dirty": 330e-9, "_mix_border": 330e-9, "_add_detail": 34e-9,
     "_add_detail_list": 60e-9, "_map_kernel": 34e-9, "_fill_rows": 2.5e-9, "_fill_pixels": 17e-9,
     "_find_gaps": 7e-9, "_put_gaps": 5e-9, "_candidates": 7e-9, "_gather": 10e-9, "_row_regions": 10e-9,
-    "_measure": 640e-9, "_compact": 18e-9, "_tv": 27e-9, "_area": 6e-9, "_cubic": 37e-9, "_to_u8": 4e-9,
-    "_to_u16": 4e-9,
+    "_measure": 640e-9, "_compact": 18e-9, "_tv": 27e-9, "_area": 6e-9, "_cubic": 37e-9, "_to_uint": 4e-9,
 }
 
 
