@@ -690,14 +690,17 @@ def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
             if len(arc) > 2 and np.hypot(*np.diff(p[arc], axis=0).T).sum() <= 2 * JUNCTION:
                 drop[i][arc[1:-1]] = True
         keep = ~drop[i]
-        q, t = q[keep], tols[i][keep]
-        # a run's two ends became one point
-        step = np.any(q != np.roll(q, 1, axis=0), axis=1)
-        if step.any():
-            q, t = q[step], t[step]
+        q, t = _drop_repeats(q[keep], tols[i][keep])  # a run's two ends became one point
         out_p.append(q)
         out_t.append(t)
     return out_p, out_t
+
+
+def _drop_repeats(p: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A closed contour and its points' tolerances without points equal to the one before (all of them
+    kept when every point is the same)."""
+    step = np.any(p != np.roll(p, 1, axis=0), axis=1)
+    return (p[step], tol[step]) if step.any() else (p, tol)
 
 
 def _meeting_point(segments: list, fallback: np.ndarray) -> np.ndarray:
@@ -943,9 +946,7 @@ def _pin_crossings(polys: list[np.ndarray], tols: list[np.ndarray], comp: np.nda
         if hit.any():
             p = p.copy()
             p[hit] = corner[hit]
-            keep = np.any(p != np.roll(p, 1, axis=0), axis=1)
-            if keep.any():
-                p, t = p[keep], t[keep]
+            p, t = _drop_repeats(p, t)
         out_p.append(p)
         out_t.append(t)
     return out_p, out_t
