@@ -111,3 +111,75 @@ def test_four_regions_meeting_crosswise_share_the_pixel_corner():
         at = np.abs(pts - 16.0).max(axis=1)
         assert (at == 0).sum() == 1, (r.label, pts[at < 1].tolist())  # the corner, once
         assert not ((at > 0) & (at <= subpixel.CROSSING)).any(), pts[at < 1].tolist()
+
+
+def _frames_and_bar():
+    """Nested frames of flat colours crossed by a bar 2 px wide (columns 23-24), and its label map."""
+    labels = np.zeros((48, 48), np.int32)
+    labels[6:42, 6:42] = 1
+    labels[12:36, 12:36] = 2
+    labels[18:30, 18:30] = 3
+    labels[2:46, 23:25] = 4
+    colours = np.array([[0.94, 0.94, 0.9], [0.16, 0.35, 0.78], [0.9, 0.7, 0.16], [0.98, 0.98, 0.98],
+                        [0.78, 0.12, 0.16]], np.float32)
+    return labels, colours[labels]
+
+
+def test_a_bar_two_pixels_wide_keeps_straight_sides_through_its_junctions():
+    """The curves coming into a junction are straight lines up to where the contour turns: around a
+    bar 2 px wide the contour turns back within the reach of the lines, and a line through the
+    turn put every junction of the bar 0.3-0.6 px inside it (a bar pinched at each crossing and a
+    square cut slanted, at 8x)."""
+    labels, rgb = _frames_and_bar()
+    regions, index = build_regions(labels, rgb=rgb)
+    assert np.array_equal(np.array([r.label for r in regions])[index], labels)
+    step = 1.0 / subpixel.GRID
+    bar = [r for r in regions if r.label == 4][0]
+    pts = np.concatenate(bar.outline)
+    side = (pts[:, 1] >= 4.0) & (pts[:, 1] <= 44.0)
+    assert (np.minimum(np.abs(pts[side, 0] - 23.0), np.abs(pts[side, 0] - 25.0)) <= step + 1e-9).all(), pts.tolist()
+    # the halves of the centre square: their corners and the junctions with the bar on the pixel corners
+    for r in regions:
+        if r.label == 3:
+            box = np.concatenate(r.outline)
+            x0, x1 = (18.0, 23.0) if box[:, 0].min() < 20 else (25.0, 30.0)
+            for corner in ((x0, 18.0), (x1, 18.0), (x0, 30.0), (x1, 30.0)):
+                assert np.hypot(*(box - corner).T).min() <= 1.5 * step, (corner, box.tolist())
+
+
+def test_squares_between_one_pixel_lines_keep_their_pixel_outlines():
+    """A line one pixel wide between two regions is read against both: its pixels used to say nothing
+    of the second border, which the smoothed mask put 0.2 px into the line (squares of a grid grew,
+    rounded, into their gutters)."""
+    rng = np.random.default_rng(3)
+    labels = np.zeros((26, 26), np.int32)
+    for i in range(4):
+        for j in range(4):
+            labels[2 + 6 * i:7 + 6 * i, 2 + 6 * j:7 + 6 * j] = 1 + 4 * i + j
+    colours = rng.uniform(0.0, 1.0, (17, 3)).astype(np.float32)
+    regions, index = build_regions(labels, rgb=colours[labels])
+    assert np.array_equal(index, labels)
+    for r in regions:
+        if r.label == 0:
+            continue
+        (ys, xs), = [np.nonzero(labels == r.label)]
+        square = np.array([[xs.min(), ys.min()], [xs.max() + 1, ys.min()], [xs.max() + 1, ys.max() + 1],
+                           [xs.min(), ys.max() + 1]], np.float64)
+        pts = r.outline[0]
+        assert len(r.outline) == 1
+        # every vertex on the square's sides, and its four corners among them
+        on_side = np.minimum(np.abs(pts[:, :1] - square[[0, 1], 0]).min(axis=1),
+                             np.abs(pts[:, 1:] - square[[0, 2], 1]).min(axis=1))
+        assert on_side.max() <= 1e-9, (r.label, pts.tolist())
+        for corner in square:
+            assert np.hypot(*(pts - corner).T).min() <= 1e-9, (r.label, corner, pts.tolist())
+
+
+def test_incoming_lines_stop_where_a_precise_contour_turns_back():
+    u_turn = np.array([[23.0, 42.5], [23.0, 43.5], [23.0, 44.5], [23.0, 45.5], [23.5, 46.0], [24.5, 46.0],
+                       [25.0, 45.5], [25.0, 44.5]])
+    assert subpixel._incoming(u_turn, True) == 4
+    # a border the label map places wavers on its own: it keeps every point within the reach
+    assert subpixel._incoming(u_turn, False) == 5  # 2 JUNCTION px along it
+    straight = np.stack([np.zeros(10), np.arange(10.0)], axis=1)
+    assert subpixel._incoming(straight, True) == 2 * subpixel.JUNCTION + 1

@@ -17,7 +17,9 @@ outline:
   straight border at the label map's angle that covers ``alpha`` of it, so
   that the level 0.5 is exactly on a straight border (on the coverage itself it
   was off by up to 0.05 px with the angle). A pixel wholly on one side takes
-  the distance its partly covered neighbours on the same border imply.
+  the distance its partly covered neighbours on the same border imply. A
+  pixel wholly of its own colour with a second region among its neighbours (a
+  line one pixel wide between two regions) is read against that one too.
 * Where the two sides' colours are too close to tell (``|mu_A - mu_B|`` below
   :data:`CONTRAST`), ``m`` leans, in proportion, on the region's mask smoothed
   by a Gaussian of :data:`SMOOTH_SIGMA` px, whose level 0.5 follows pixel
@@ -82,7 +84,7 @@ CORNER_TURN = 35.0
 #: Arc (px) over which a contour's turning is measured.
 CORNER_ARM = 2.0
 #: The straight runs either side of a corner: (from, to) px along the contour, tried in turn.
-CORNER_RUNS = ((2.0, 6.0), (0.7, 3.0))
+CORNER_RUNS = ((2.0, 6.0), (0.7, 3.5))
 #: Largest distance (px) of a run's point from its line for the run to be straight.
 CORNER_STRAIGHT = 0.08
 #: A point this close (px) to a corner's line is on it, not on the rounding.
@@ -293,6 +295,7 @@ class BorderReading:
         self.level = np.ones((H, W))
         self.trust = np.zeros((H, W))
         self.near_trust = self.trust
+        self._second = None
         ys, xs = np.nonzero(border)
         if ys.size == 0:
             return
@@ -310,6 +313,18 @@ class BorderReading:
             count[take] = c[take]
         own = comp[ys, xs]
         self.across[ys, xs] = best
+        # a pixel with another region on two sides (a line one pixel wide, a junction) is read against
+        # the second most frequent one too, so that its field does not leave that border to the
+        # smoothed mask (which put the borders of a one-pixel line 0.2 px into it)
+        second = np.full(len(ys), -1, np.int64)
+        count2 = np.zeros(len(ys), np.int64)
+        v2 = np.where(v != best[:, None], v, -1)
+        for k in range(8):
+            c = (v2 == v2[:, k:k + 1]).sum(axis=1)
+            take = (v2[:, k] >= 0) & ((c > count2) | ((c == count2) & (v2[:, k] < second)))
+            second[take] = v2[take, k]
+            count2[take] = c[take]
+        del v2
         # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile)
         n = len(ys)
         mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
@@ -330,6 +345,47 @@ class BorderReading:
         texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
         self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
+        two = np.flatnonzero((second >= 0) & (a >= 1.0 - SATURATED))
+        if two.size:
+            self._read_second(comp, border, rgb, ys[two], xs[two], own[two], second[two])
+
+    def _read_second(self, comp, border, rgb, ys, xs, own, across) -> None:
+        """The reading of border pixels ``(ys, xs)`` against a second region ``across``, kept sparse
+        (sorted flat indices, region across, level, trust): few pixels have one."""
+        W = comp.shape[1]
+        n = len(ys)
+        mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
+        sd_a, sd_b = np.empty(n), np.empty(n)
+        for a0 in range(0, n, SIDE_CHUNK):
+            k = slice(a0, a0 + SIDE_CHUNK)
+            mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], across[k])
+        d = mu_a - mu_b
+        dd = (d * d).sum(axis=1)
+        a = np.clip(((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12), 0.0, 1.0)
+        contrast = np.sqrt(dd)
+        texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
+        whole = a >= 1.0 - SATURATED
+        ys, xs, across, a, normal, contrast, texture = (v[whole] for v in (ys, xs, across, a, normal, contrast, texture))
+        flat = ys.astype(np.int64) * W + xs
+        order = np.argsort(flat, kind="stable")
+        self._second = (flat[order], across[order].astype(np.int32), (0.5 + _coverage_distance(a, normal))[order],
+                        (np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture)[order])
+
+    def _second_in(self, window: tuple[slice, slice], region: int):
+        """The second readings against ``region`` in ``window``: ``((rows, cols) in the window, level,
+        trust)``, or None."""
+        if self._second is None:
+            return None
+        flat, across, level, trust = self._second
+        H, W = self.level.shape
+        r0, r1, _ = window[0].indices(H)
+        c0, c1, _ = window[1].indices(W)
+        lo, hi = np.searchsorted(flat, [r0 * W, r1 * W])
+        y, x = np.divmod(flat[lo:hi], W)
+        sel = np.flatnonzero((across[lo:hi] == region) & (x >= c0) & (x < c1))
+        if sel.size == 0:
+            return None
+        return (y[sel] - r0, x[sel] - c0), level[lo:hi][sel], trust[lo:hi][sel]
 
     def _extrapolate(self, ys, xs, a, normal, own, across) -> None:
         """A pixel wholly on one side (alpha 0 or 1) only says its centre is at least the
@@ -386,6 +442,14 @@ class BorderReading:
         facing = np.where(sub, across >= 0, across == region)
         w = np.where(facing, trust, 0.0)
         del facing
+        # a line one pixel wide between this region and another: its pixels, read against this region
+        # too, say where this border is when their colour is wholly their own (then the two sides'
+        # fields add up to 1 there, as where a pixel faces this region)
+        second = self._second_in(window, region)
+        if second is not None:
+            (ry, rx), lv, tr = second
+            m[ry, rx] = 1.0 - lv
+            w[ry, rx] = tr
         m *= w
         np.subtract(1.0, w, out=w)
         w *= smooth
@@ -663,10 +727,9 @@ def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
         p, n = polys[i], sizes[i]
         for end, step in ((run[0], -1), (run[-1], 1)):
             idx = (end + step * np.arange(min(n, 24))) % n
-            seg = p[idx]
-            near = np.hypot(*(seg - seg[0]).T) <= 2 * JUNCTION
-            if near.sum() >= 3:
-                lines.setdefault(find(tuple(keys[i][end])), []).append((seg[near], float(tols[i][idx][near].mean())))
+            k = _incoming(p[idx], bool(tols[i][idx[:3]].mean() <= 2 * TOLERANCE))
+            if k >= 3:
+                lines.setdefault(find(tuple(keys[i][end])), []).append((p[idx[:k]], float(tols[i][idx[:k]].mean())))
     # a cluster spread wider than a junction is several junctions chained by short runs: left alone
     centre = {root: _meeting_point(lines.get(root, []), np.mean(pts, axis=0)) for root, pts in where.items()
               if np.hypot(*(np.asarray(pts) - np.mean(pts, axis=0)).T).max() <= JUNCTION}
@@ -694,6 +757,34 @@ def _close_junctions(polys: list[np.ndarray], tols: list[np.ndarray], W: int,
         out_p.append(q)
         out_t.append(t)
     return out_p, out_t
+
+
+def _incoming(seg: np.ndarray, precise: bool) -> int:
+    """How many leading points of ``seg`` (a contour leaving a junction) make the straight curve coming
+    into it: at most 2 :data:`JUNCTION` px along the contour and, where the colours place it
+    (``precise``), up to where it turns by more than :data:`CORNER_TURN` from its first stretch.
+
+    Around a thin part (a bar 2 px wide) the contour turns back within that reach: its points there
+    are near the junction but on another curve, and a line through them all crossed the others
+    0.6 px inside the bar. A curve the label map places wavers by more than that turn on its own
+    (a disc cut in two where the photo shows no edge): it keeps its points.
+    """
+    if len(seg) < 2:
+        return len(seg)
+    step = np.diff(seg, axis=0)
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*step.T))])
+    k = int(np.searchsorted(arc, 2 * JUNCTION, side="right"))
+    if not precise:
+        return k
+    # the first stretch: the chord to the second point on (the first point may lie in the junction's rounding)
+    u = seg[min(2, k - 1)] - seg[0]
+    nu = float(np.hypot(*u))
+    if nu == 0.0:
+        return k
+    ns = np.hypot(*step[:k - 1].T)
+    turned = step[:k - 1] @ u < np.cos(np.radians(CORNER_TURN)) * nu * np.maximum(ns, 1e-12)
+    bad = np.flatnonzero(turned & (ns > 0))
+    return k if bad.size == 0 else int(bad[0]) + 1
 
 
 def _drop_repeats(p: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1017,6 +1108,11 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
 
     keys = _point_keys(polys)
     part = chains.partners(keys)
+    # points on three contours or more (junctions, which the junction closing placed): a corner there
+    # would move them in two of the regions only
+    allk = np.concatenate(keys) if keys else np.zeros((0, 2), np.int64)
+    uk, nk = np.unique(allk, axis=0, return_counts=True)
+    junctions = {tuple(k) for k in uk[nk >= 3]}
     edits: dict[int, list[tuple[set, np.ndarray]]] = {}
     claimed: set = set()
     for i, p in enumerate(polys):
@@ -1078,7 +1174,7 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
             if (twin < 0).any() or (twin != twin[0]).any() or (tols[i][around] > 1.5 * tolerance).any():
                 continue
             zkeys = {tuple(k) for k in keys[i][zone]}
-            if zkeys & claimed:
+            if zkeys & claimed or zkeys & junctions:
                 continue
             claimed |= zkeys
             for j in (i, int(twin[0])):
