@@ -5,7 +5,8 @@ import pytest
 from scipy import ndimage as ndi
 
 from tpsv.errors import TpsvError
-from tpsv.geometry.segment import overlay_regions, segment_auto, segment_strokes, split_connected, stroke_labels
+from tpsv.geometry.segment import (flat_regions, overlay_regions, segment_auto, segment_strokes, split_connected,
+                                   stroke_labels)
 
 
 def _connected(lab):
@@ -309,3 +310,74 @@ def test_renumber_numbers_values_in_raster_order_of_their_first_pixel():
         want = rank[mapped]
         out, n = _renumber(comp, table)
         assert n == len(vals) and out.dtype == np.int32 and np.array_equal(out, want)
+
+
+def _flat_drawing():
+    """Squares of random colours between gutters one pixel wide, and a line one pixel wide across the margin."""
+    rng = np.random.default_rng(5)
+    labels = np.zeros((34, 40), np.int32)
+    for i in range(4):
+        for j in range(5):
+            labels[4 + 7 * i:10 + 7 * i, 2 + 7 * j:8 + 7 * j] = 1 + 5 * i + j
+    labels[1, 2:38] = 21
+    colours = rng.integers(0, 256, (22, 3)).astype(np.uint8)
+    return colours[labels], labels
+
+
+def _same_partition(a, b):
+    """Two label maps cut the picture into the same regions (whatever their numbers)."""
+    pairs = np.unique(np.stack([a.ravel(), b.ravel()], 1), axis=0)
+    return len(pairs) == len(np.unique(a)) == len(np.unique(b))
+
+
+def test_a_flat_drawing_gets_its_patches_and_lines_as_regions():
+    """A drawing of flat colours: every patch of one colour is a region, the gutters and the line one
+    pixel wide included (the superpixel merges gave 7 regions for a grid of 64 squares)."""
+    rgb, labels = _flat_drawing()
+    assert _same_partition(flat_regions(rgb), split_connected(labels, min_size=1))
+    assert _same_partition(segment_auto(rgb), split_connected(labels, min_size=1))
+    # asked for a number of regions, the general path answers
+    assert segment_auto(rgb, n_regions=4).max() + 1 <= 4
+
+
+def _anti_aliased(scale=8):
+    """A disc and a thick dark line on a flat background, drawn anti-aliased (area-averaged from 8x)."""
+    big = np.full((48 * scale, 64 * scale, 3), (240, 235, 225), np.uint8)
+    yy, xx = np.mgrid[:48 * scale, :64 * scale] + 0.5
+    big[np.hypot(xx - 18 * scale, yy - 24 * scale) < 11 * scale] = (200, 60, 40)
+    # a line 2 px wide from (34, 6) to (60, 42)
+    d = np.abs((xx - 34 * scale) * 36 - (yy - 6 * scale) * 26) / np.hypot(36, 26)
+    t = ((xx - 34 * scale) * 26 + (yy - 6 * scale) * 36) / np.hypot(36, 26)
+    line = (d < 1.0 * scale) & (t > 0) & (t < np.hypot(36, 26) * scale)
+    big[line] = (20, 20, 30)
+    small = big.reshape(48, scale, 64, scale, 3).mean(axis=(1, 3))
+    cover = line.reshape(48, scale, 64, scale).mean(axis=(1, 3))
+    disc = np.hypot(np.mgrid[:48, :64][1] + 0.5 - 18, np.mgrid[:48, :64][0] + 0.5 - 24)
+    return np.rint(small).astype(np.uint8), cover, disc
+
+
+def test_an_anti_aliased_drawing_gets_its_shapes_cut_at_half_coverage():
+    """The line has no pixel of its pure colour: it is a shape of its own, whose rim pixels less than
+    half covered go to the background (whole, they left a light halo around the line at 8x)."""
+    rgb, cover, disc = _anti_aliased()
+    labels = flat_regions(rgb)
+    assert labels is not None
+    assert len(np.unique(labels[disc < 10])) == 1 and len(np.unique(labels[disc > 12])) > 1
+    inside = labels[cover > 0.6]
+    line = np.bincount(inside).argmax()
+    assert (inside == line).all()
+    assert (cover[labels == line] > 0.35).all()
+    assert labels[0, 0] == labels[-1, 0] == labels[0, -1]  # one background
+
+
+def test_a_photo_is_no_flat_drawing():
+    rng = np.random.default_rng(0)
+    photo = np.clip(rng.normal(0.5, 0.1, (40, 50, 3)), 0, 1).astype(np.float32)
+    assert flat_regions(photo) is None
+    page = np.full((200, 200, 3), 240, np.uint8)
+    page[50:150, 50:150] = np.clip(rng.normal(120, 20, (100, 100, 3)), 0, 255)
+    assert flat_regions(page) is None  # a photo on a flat background: the general path
+    page = np.full((200, 200, 3), 240, np.uint8)
+    page[50:62, 50:62] = np.clip(rng.normal(120, 20, (12, 12, 3)), 0, 255)
+    small = flat_regions(page)
+    assert small is not None and small.max() == 1 and len(np.unique(small[50:62, 50:62])) == 1

@@ -577,6 +577,195 @@ def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:
     return float(np.sqrt(max(sq.sum(), 0.0) / max(labels.size, 1)))
 
 
+#: Share of the pixels that must lie in patches of one exact colour, each with an interior pixel,
+#: for :func:`flat_regions` to read a picture as a flat-colour graphic (a drawing, a logo, a
+#: screenshot, pixel art). Photos hold almost none: noise makes neighbours differ.
+FLAT_SHARE = 0.7
+#: A pixel whose colour lies within this distance (sRGB 0-1, Euclidean) of a mix of the patch it
+#: joined and a patch around it is their anti-aliased border, not a shape of its own.
+FLAT_MIX = 0.03
+#: Share of the pixels that may lie in thick shapes of varied colour or in crumbs (neither in a
+#: patch nor a mix of the patches around them, nor a thin shape); beyond it the picture holds
+#: content of another kind (a photo on a flat background) and the general segmentation runs.
+FLAT_LEFT = 0.02
+#: A shape of its own in a flat graphic (pixels that are no mix of the patches around them) at most
+#: this many pixels from its edge everywhere is thin (a line, a stroke of anti-aliased text); thicker
+#: ones count towards :data:`FLAT_LEFT`.
+FLAT_THIN = 4
+#: Most regions :func:`flat_regions` gives; a picture with more flat patches takes the general path.
+FLAT_MAX_REGIONS = 1024
+
+
+def _mix_distance(c: np.ndarray, own: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Per pixel, the least distance from its colour ``c`` (n, 3) to a mix of its region's colour
+    ``own`` (n, 3) and one of the colours ``cols`` (n, k, 3) around it (the segment between them)."""
+    best = np.full(len(c), np.inf)
+    for j in range(cols.shape[1]):
+        d = cols[:, j] - own
+        dd = (d * d).sum(axis=1)
+        t = np.clip(((c - own) * d).sum(axis=1) / np.maximum(dd, 1e-12), 0.0, 1.0)
+        e = c - own - t[:, None] * d
+        np.minimum(best, np.sqrt((e * e).sum(axis=1)), out=best)
+    return best
+
+
+#: Pixels (4-neighbour steps) the patches of a flat graphic are grown over its anti-aliased borders.
+FLAT_REACH = 8
+
+
+def _grow(labels: np.ndarray, rgb: np.ndarray, colour: np.ndarray, steps: int | None) -> bool:
+    """Give unlabelled pixels (``-1``) of ``labels`` (H, W) the label of a 4-neighbour, the one whose
+    ``colour`` is nearest theirs (``rgb``: (H * W, 3)), a ring at a time, ``steps`` rings (None: until
+    none is left). Returns whether every pixel got one."""
+    H, W = labels.shape
+    flat = labels.ravel()
+    todo = np.flatnonzero(flat < 0)
+    done = 0
+    while todo.size and (steps is None or done < steps):
+        ys, xs = np.divmod(todo, W)
+        best = np.full(todo.size, np.inf)
+        pick = np.full(todo.size, -1, np.int64)
+        for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            qy, qx = ys + dy, xs + dx
+            ok = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
+            lab = np.full(todo.size, -1, np.int64)
+            lab[ok] = labels[qy[ok], qx[ok]]
+            ok = lab >= 0
+            d = np.full(todo.size, np.inf)
+            d[ok] = ((colour[lab[ok]] - rgb[todo[ok]]) ** 2).sum(axis=1)
+            better = d < best
+            best[better], pick[better] = d[better], lab[better]
+        got = pick >= 0
+        if not got.any():
+            break
+        flat[todo[got]] = pick[got]
+        todo = todo[~got]
+        done += 1
+    return todo.size == 0
+
+
+def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | None:
+    """The regions of a flat-colour graphic, or None when ``rgb`` is not one.
+
+    A drawing, a logo, a diagram or a screenshot is made of patches of one
+    exact colour with anti-aliased borders between them; superpixels merged by
+    colour (:func:`segment_auto`'s general path) lose its small shapes and
+    lines (a grid of 64 squares came back as 7 regions). Here every
+    4-connected patch of one exact colour with an interior pixel (its four
+    neighbours the same colour) and at least ``min_size`` pixels is a region,
+    when such patches hold at least :data:`FLAT_SHARE` of the pixels. The
+    other pixels join the neighbouring patch nearest in colour, grown out
+    :data:`FLAT_REACH` px from the patches: anti-aliased borders. Those whose
+    colour is no mix (within :data:`FLAT_MIX`) of the patch they joined and a
+    patch around them, or that no patch reached, are a shape of their own
+    where they connect into ``min_size`` pixels or more (a line one pixel
+    wide, anti-aliased text whose strokes hold no pixel of their pure colour,
+    a small picture on the page). When shapes thicker than :data:`FLAT_THIN`
+    px and crumbs hold more than :data:`FLAT_LEFT` of the pixels (a photo on a
+    flat background), or there would be more than :data:`FLAT_MAX_REGIONS`
+    regions, None.
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3)
+        uint8, or float in ``[0, 1]``.
+    min_size : int, optional
+        Smallest patch that is a region (default :func:`default_min_size`).
+
+    Returns
+    -------
+    labels : ndarray (H, W) int32, values ``0..n-1``, or None
+    """
+    rgb = _check_rgb(rgb)
+    H, W = rgb.shape[:2]
+    n_px = H * W
+    min_size = default_min_size((H, W)) if min_size is None else max(1, int(min_size))
+    # a cheap look first: in a photo hardly a pixel equals its neighbours
+    same_right = (rgb[:, 1:] == rgb[:, :-1]).all(axis=2)
+    same_down = (rgb[1:] == rgb[:-1]).all(axis=2)
+    if (same_right.sum() + same_down.sum()) < FLAT_SHARE * (2 * n_px - H - W):
+        return None
+    # colours as exact integer keys (16 bits a channel holds every 8- and 16-bit value apart)
+    q = np.rint(rgb.astype(np.float64) * 65535.0).astype(np.int64)
+    key = (q[..., 0] << 32) | (q[..., 1] << 16) | q[..., 2]
+    del q
+    comp, n = _components(key)
+    size = np.bincount(comp.ravel(), minlength=n)
+    pad = np.pad(comp, 1, mode="edge")
+    interior = ((pad[:-2, 1:-1] == comp) & (pad[2:, 1:-1] == comp) & (pad[1:-1, :-2] == comp)
+                & (pad[1:-1, 2:] == comp))
+    del pad
+    thick = np.zeros(n, bool)
+    thick[comp[interior]] = True
+    seed = thick & (size >= min_size)
+    if size[seed].sum() < FLAT_SHARE * n_px or seed.sum() > FLAT_MAX_REGIONS:
+        return None
+    flat_rgb = rgb.reshape(-1, 3)
+    colour = np.stack([np.bincount(comp.ravel(), weights=flat_rgb[:, c], minlength=n) for c in range(3)], axis=1)
+    colour /= np.maximum(size, 1)[:, None]
+    labels = np.where(seed[comp], comp, -1)
+    # anti-aliased borders are a few pixels wide: the patches grown that far, each pixel to the
+    # neighbouring region nearest in colour
+    _grow(labels, flat_rgb, colour, FLAT_REACH)
+    # the pixels outside the patches: a mix of the regions around them, or a shape of their own
+    rest = np.flatnonzero(~seed[comp].ravel())
+    odd = np.zeros(n_px, bool)
+    if rest.size:
+        ys, xs = np.divmod(rest, W)
+        own = labels.ravel()[rest]
+        # the regions around: 1 to FLAT_REACH px away in 8 directions (an anti-aliased border may be
+        # wider than the 3 x 3 neighbourhood)
+        around = []
+        for r in sorted({1, 2, 4, FLAT_REACH}):
+            for dy in (-r, 0, r):
+                for dx in (-r, 0, r) if dy else (-r, r):
+                    lab = labels[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)]
+                    around.append(np.where(lab >= 0, lab, own))
+        reached = own >= 0
+        err = np.full(rest.size, np.inf)
+        err[reached] = _mix_distance(flat_rgb[rest[reached]].astype(np.float64), colour[own[reached]],
+                                     colour[np.stack(around, axis=1)[reached]])
+        odd[rest[err > FLAT_MIX]] = True
+    # connected pixels that are no mix, enough of them: a shape of its own (a line one pixel wide,
+    # anti-aliased text whose strokes hold no pixel of their pure colour, a small picture on the page)
+    odd2 = odd.reshape(H, W)
+    shapes, k = _components(odd2.astype(np.int8))
+    big = np.bincount(shapes.ravel(), minlength=k) >= min_size
+    mine = odd2 & big[shapes]
+    # but thick patches of varied colours are little of a drawing: a photo on a flat background
+    core = cv2.erode(odd2.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)),
+                     iterations=FLAT_THIN) > 0
+    thick = np.zeros(k, bool)
+    thick[shapes[core]] = True
+    if int(odd.sum()) - int(mine.sum()) + int((mine & thick[shapes]).sum()) > FLAT_LEFT * n_px:
+        return None
+    # a shape's anti-aliased rim: its pixels less than half of the shape's own colour (that of its pixels
+    # farthest from the patch they joined) over that patch's go to the patch
+    ys, xs = np.nonzero(mine)
+    sid, grown = shapes[ys, xs], labels[ys, xs]
+    c = flat_rgb[ys * W + xs].astype(np.float64)
+    base = colour[np.maximum(grown, 0)]
+    dist = np.where(grown >= 0, np.sqrt(((c - base) ** 2).sum(axis=1)), np.inf)
+    far = np.zeros(k)
+    np.maximum.at(far, sid, np.where(np.isfinite(dist), dist, 0.0))
+    core_px = dist >= 0.75 * far[sid]
+    cnt = np.maximum(np.bincount(sid[core_px], minlength=k), 1)
+    own_col = np.stack([np.bincount(sid[core_px], weights=c[core_px, j], minlength=k) for j in range(3)], axis=1) / cnt[:, None]
+    d = own_col[sid] - base
+    t = ((c - base) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-12)
+    stay = (grown < 0) | (t >= 0.5)
+    labels[ys[stay], xs[stay]] = n + sid[stay]
+    labels[odd2 & ~mine] = -1
+    # what is left (a few crumbs) to the neighbouring region nearest in colour
+    if not _grow(labels, flat_rgb, np.concatenate([colour, own_col]), None):
+        return None
+    labels, count = _renumber(labels)
+    if count > FLAT_MAX_REGIONS:
+        return None
+    # one label a 4-connected piece (pixels grown around a thin shape may be cut off), crumbs merged
+    return split_connected(labels, min_size=min_size)
+
+
 #: :func:`segment_auto` keeps the boundary-merged regions when their :func:`fill_residual`, times
 #: ``1 + REGION_COST`` per region, is at most this fraction of the Ward-merged ones'. A region
 #: costs bytes and a border, and more regions always fit better: without the cost, 3 of the edge
@@ -613,6 +802,11 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     photos texture dominates both residuals and the Ward merge's more
     object-like regions stay (the bundled samples keep theirs).
 
+    A flat-colour graphic (a drawing, a logo, a screenshot: :func:`flat_regions`)
+    takes its patches of one colour as regions instead, when no ``n_regions``
+    is asked for and they score no worse than both merges (the same fill
+    residual and cost a region).
+
     Deterministic for a given ``seed`` (SLIC itself is deterministic; the seed
     only breaks exact cost ties).
 
@@ -633,10 +827,11 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     H, W = rgb.shape[:2]
     if n_regions is not None and n_regions < 1:
         raise TpsvError("--regions must be at least 1")
+    flat = flat_regions(rgb) if n_regions is None else None
     lab = lab_image(rgb, clip=True)
     sp, n = _superpixels(rgb, lab)
     if n <= 1:
-        return np.zeros((H, W), np.int32)
+        return np.zeros((H, W), np.int32) if flat is None else flat
 
     def merged_and_scored(boundary: bool):
         labels = _merged(sp, n, lab, seed, n_regions, boundary=boundary)
@@ -650,6 +845,12 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
         ward, ward_score = ward_job.result()
     else:
         (ward, ward_score), (steps, steps_score) = merged_and_scored(False), merged_and_scored(True)
+    if flat is not None:
+        # a flat graphic's patches when they explain it as well for their number (small anti-aliased
+        # text cut into many tiny regions does not: its letters came back with dark blobs at 4x)
+        flat_score = fill_residual(lab, flat) * (1.0 + REGION_COST * (int(flat.max()) + 1))
+        if flat_score <= min(ward_score, steps_score):
+            return flat
     return steps if steps_score <= FILL_GAIN * ward_score else ward
 
 
