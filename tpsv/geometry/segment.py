@@ -644,7 +644,7 @@ def _grow(labels: np.ndarray, rgb: np.ndarray, colour: np.ndarray, steps: int | 
     return todo.size == 0
 
 
-def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | None:
+def flat_regions(rgb: np.ndarray, min_size: int | None = None, mixed: bool = False):
     """The regions of a flat-colour graphic, or None when ``rgb`` is not one.
 
     A drawing, a logo, a diagram or a screenshot is made of patches of one
@@ -672,10 +672,23 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     min_size : int, optional
         Smallest patch that is a region (default :func:`default_min_size`).
 
+    mixed : bool
+        Also return the share of the pixels read as anti-aliased borders (0:
+        a crisp graphic, pixel art).
+
     Returns
     -------
     labels : ndarray (H, W) int32, values ``0..n-1``, or None
+        (``(labels, share)`` with ``mixed``; ``(None, 0.0)`` when not a graphic.)
     """
+    if mixed:
+        return _flat_regions(rgb, min_size)
+    return _flat_regions(rgb, min_size)[0]
+
+
+def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | None, float]:
+    """:func:`flat_regions` and the share of its pixels read as anti-aliased borders."""
+    none = (None, 0.0)
     rgb = _check_rgb(rgb)
     H, W = rgb.shape[:2]
     n_px = H * W
@@ -684,7 +697,7 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     same_right = (rgb[:, 1:] == rgb[:, :-1]).all(axis=2)
     same_down = (rgb[1:] == rgb[:-1]).all(axis=2)
     if (same_right.sum() + same_down.sum()) < FLAT_SHARE * (2 * n_px - H - W):
-        return None
+        return none
     # colours as exact integer keys (16 bits a channel holds every 8- and 16-bit value apart)
     q = np.rint(rgb.astype(np.float64) * 65535.0).astype(np.int64)
     key = (q[..., 0] << 32) | (q[..., 1] << 16) | q[..., 2]
@@ -699,7 +712,7 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     thick[comp[interior]] = True
     seed = thick & (size >= min_size)
     if size[seed].sum() < FLAT_SHARE * n_px or seed.sum() > FLAT_MAX_REGIONS:
-        return None
+        return none
     flat_rgb = rgb.reshape(-1, 3)
     colour = np.stack([np.bincount(comp.ravel(), weights=flat_rgb[:, c], minlength=n) for c in range(3)], axis=1)
     colour /= np.maximum(size, 1)[:, None]
@@ -710,6 +723,7 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     # the pixels outside the patches: a mix of the regions around them, or a shape of their own
     rest = np.flatnonzero(~seed[comp].ravel())
     odd = np.zeros(n_px, bool)
+    mix = 0.0
     if rest.size:
         ys, xs = np.divmod(rest, W)
         own = labels.ravel()[rest]
@@ -726,6 +740,7 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
         err[reached] = _mix_distance(flat_rgb[rest[reached]].astype(np.float64), colour[own[reached]],
                                      colour[np.stack(around, axis=1)[reached]])
         odd[rest[err > FLAT_MIX]] = True
+        mix = float((err <= FLAT_MIX).sum()) / n_px
     # connected pixels that are no mix, enough of them: a shape of its own (a line one pixel wide,
     # anti-aliased text whose strokes hold no pixel of their pure colour, a small picture on the page)
     odd2 = odd.reshape(H, W)
@@ -738,7 +753,7 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     thick = np.zeros(k, bool)
     thick[shapes[core]] = True
     if int(odd.sum()) - int(mine.sum()) + int((mine & thick[shapes]).sum()) > FLAT_LEFT * n_px:
-        return None
+        return none
     # a shape's anti-aliased rim: its pixels less than half of the shape's own colour (that of its pixels
     # farthest from the patch they joined) over that patch's go to the patch
     ys, xs = np.nonzero(mine)
@@ -758,12 +773,12 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None) -> np.ndarray | N
     labels[odd2 & ~mine] = -1
     # what is left (a few crumbs) to the neighbouring region nearest in colour
     if not _grow(labels, flat_rgb, np.concatenate([colour, own_col]), None):
-        return None
+        return none
     labels, count = _renumber(labels)
     if count > FLAT_MAX_REGIONS:
-        return None
+        return none
     # one label a 4-connected piece (pixels grown around a thin shape may be cut off), crumbs merged
-    return split_connected(labels, min_size=min_size)
+    return split_connected(labels, min_size=min_size), mix
 
 
 #: :func:`segment_auto` keeps the boundary-merged regions when their :func:`fill_residual`, times
