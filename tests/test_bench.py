@@ -11,7 +11,8 @@ from click.testing import CliRunner
 
 from tpsv import metrics
 from tpsv.bench.shapes import shapes
-from tpsv.bench.tables import edge_table, edge_table_text, file_magnification_table
+from tpsv.bench.drawings import DENSITY, NAMES, drawing
+from tpsv.bench.tables import GRAPHICS_METHODS, edge_table, edge_table_text, file_magnification_table
 from tpsv.cli import main
 
 
@@ -44,6 +45,11 @@ def test_bench_tiny(tmp_path, small_png):
     assert "A .tpsv magnified 4x" in r.stdout
     (edge,) = report["edges"]["variants"]
     assert edge["seed"] == 0 and all(edge[k]["psnr"] > 15 for k in ("tpsv", "bicubic", "lanczos"))
+    assert "Graphics: flat-colour drawings" in r.stdout
+    g = report["graphics"]
+    assert g["scale"] == 8 and [d["name"] for d in g["drawings"]] == list(NAMES)
+    assert all(15 < d[k]["psnr"] and 0 <= d[k]["gmsd"] < 0.5 for d in g["drawings"] for k in GRAPHICS_METHODS)
+    assert all(d["tpsv"]["bytes"] > 0 and d["tpsv"]["regions"] >= 1 for d in g["drawings"])
     assert cv2.imread(str(out / "rd-small.png")) is not None
 
 
@@ -185,3 +191,18 @@ def test_scaling_table_measures_each_size_in_a_child(small_rgb):
         assert r["bytes_per_pixel"] == r["peak_rss_bytes"] / r["pixels"]
     text = scaling_text(t)
     assert "64x64" in text.replace(" ", "") and "no-detail" in text
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_drawings_magnified_area_average_back_to_themselves(name):
+    small = drawing(name)
+    for scale in (2, 8):
+        big = drawing(name, scale)
+        h, w = small.shape[:2]
+        assert big.shape == (h * scale, w * scale, 3)
+        back = big.reshape(h, scale, w, scale, 3).mean(axis=(1, 3))
+        assert np.abs(back - small).max() <= 0.5 / 255 + 1e-6  # scale 1 is rounded to 8 bits
+    with pytest.raises(ValueError):
+        drawing(name, DENSITY + 1)
+    if name != "logo":  # drawn on pixel edges: no anti-aliased pixel
+        assert np.array_equal(drawing(name, 4), np.repeat(np.repeat(small, 4, 0), 4, 1))

@@ -46,15 +46,16 @@ def _outputs(out_dir: str | None, plotted: list[str]) -> list[tuple[str, Path]]:
 
 
 def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges: int,
-         rd: bool = True) -> tuple[list[dict], dict | None]:
+         rd: bool = True) -> tuple[list[dict], dict | None, dict | None]:
     """The benchmark of each input (a .tpsv: its timing tables only; ``rd``: with the
-    rate-distortion table), then the edge table once (``edges`` variants, 0: none;
-    only when some input is a raster image), with a progress bar on a terminal."""
+    rate-distortion table), then the edge table (``edges`` variants, 0: none) and the
+    graphics table once (only when some input is a raster image and ``edges``), with a
+    progress bar on a terminal."""
     if all(model for *_, model in inputs):
         edges = 0
     stages = ["search", "initial", "grid", "jpeg"] + (["rd"] if rd else []) + ["timing", "magnify", "edits"]
     results = []
-    with progress_bar(ctx, len(inputs) * len(stages) + (1 if edges else 0), "bench") as bar:
+    with progress_bar(ctx, len(inputs) * len(stages) + (2 if edges else 0), "bench") as bar:
         for name, path, lab_path, model in inputs:
             if model:
                 results.append(b.bench_model(name, codec.load(path), device=device))
@@ -68,7 +69,10 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
         edge = b.edge_table(edges, iterations=iterations, device=device) if edges else None
         if bar and edges:
             bar.update(1)
-    return results, edge
+        graphics = b.graphics_table(device=device) if edges else None
+        if bar and edges:
+            bar.update(1)
+    return results, edge, graphics
 
 
 @main.command()
@@ -81,7 +85,7 @@ def _run(ctx, inputs, device: str, iterations: int, grid: int, seed: int, edges:
               help="Brute-force grid of N x N thresholds (0: skip).")
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--edges", "edge_variants", type=click.IntRange(0, 20), default=3, show_default=True,
-              help="Variants of the synthetic shapes in the edge table (0: skip it).")
+              help="Variants of the synthetic shapes in the edge table (0: skip it and the graphics table).")
 @click.option("--codecs", is_flag=True, default=False,
               help="Also compare detail-texture codecs (own DCT, WebP, AVIF colour, AVIF planes) on each image.")
 @click.option("--rd/--no-rd", default=True, show_default=True,
@@ -112,7 +116,9 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     the file's scale-1 render; PSNR, GMSD and PSNR along region borders),
     the edge table (synthetic shapes rendered at 8x against the analytic
     picture, PSNR and GMSD, with and without their label map, next to bicubic
-    and Lanczos; once per run), the
+    and Lanczos; once per run), the graphics table (flat-colour drawings,
+    crisp and anti-aliased, vectorised without a label map and magnified, at
+    8x against the exact picture; once per run), the
     edit latencies (recolor and deform through a live image, at the model's
     size and, with --device cuda, at 1920x1080, next to the device table of
     whole renders, prepared frames and new sizes) and CPU seconds.
@@ -121,9 +127,9 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     with claim_outputs([p for _, path, lab, _ in inputs for p in (path, lab)],
                        *_outputs(out_dir, [name for name, _, _, model in inputs if not model])) as out:
         device = device_for(ctx, device)
-        results, edges = _run(ctx, inputs, device, iterations, grid, seed, edge_variants, rd)
+        results, edges, graphics = _run(ctx, inputs, device, iterations, grid, seed, edge_variants, rd)
         report = {"device": device, "iterations": iterations, "grid": grid, "seed": seed, "images": results,
-                  "edges": edges}
+                  "edges": edges, "graphics": graphics}
         if codecs:
             from ..bench.codecs import detail_codec_table
 
@@ -146,7 +152,7 @@ def bench(ctx, images, out_dir, iterations, grid, seed, edge_variants, codecs, r
     if as_json:
         click.echo(json.dumps(report, indent=2, default=float))
     else:
-        click.echo(b.tables(results, device, edges))
+        click.echo(b.tables(results, device, edges, graphics))
         if codecs:
             from ..bench.codecs import detail_codec_text
 
