@@ -232,7 +232,8 @@ def _sides(comp, border, rgb, ys, xs, own, across):
     Each side's colour is a plane fitted to its interior (non-border) pixels in the
     window and read at the border pixel: a mean alone would be off by the gradient
     times the window's offset from the pixel. A side with no interior pixel there
-    (thin parts) takes all its pixels.
+    (thin parts) takes its pixel farthest from the other side's colour (its spread:
+    all its pixels').
     """
     n = len(ys)
     fits = {key: PlaneFit(n) for key in ("a", "b", "fa", "fb")}
@@ -252,6 +253,24 @@ def _sides(comp, border, rgb, ys, xs, own, across):
         mu_i, sd_i = fits[inner].solve()
         mu_w, sd_w = fits[whole].solve()
         out += [np.where(use[:, None], mu_i, mu_w), np.where(use, sd_i, sd_w)]
+    # a side with no unmixed pixel (a line one or two pixels wide) has no pixel of its own colour: the
+    # mean of its mixed pixels lies towards the other side, and read against it the line's pixels came
+    # out wider than it (a dark line 2 px wide ended in a blob at 8x). Its pixel farthest from the other
+    # side's colour is nearer its own.
+    for k, (key, other, region) in enumerate((("a", 2, own), ("b", 0, across))):
+        thin = (fits[key].count == 0) & (fits["b" if key == "a" else "a"].count > 0)
+        if not thin.any():
+            continue
+        ref = out[other]
+        best = np.full(n, -1.0)
+        pick = out[2 * k].copy()
+        for _, _, qy, qx, inside in _window(ys, xs, comp.shape, WINDOW // 2):
+            col = rgb[qy, qx].astype(np.float64)
+            d = ((col - ref) ** 2).sum(axis=1)
+            take = thin & inside & (comp[qy, qx] == region) & (d > best)
+            best[take] = d[take]
+            pick[take] = col[take]
+        out[2 * k] = pick
     return (*out, normal)
 
 
