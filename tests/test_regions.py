@@ -138,6 +138,9 @@ def test_a_bar_two_pixels_wide_keeps_straight_sides_through_its_junctions():
     pts = np.concatenate(bar.outline)
     side = (pts[:, 1] >= 4.0) & (pts[:, 1] <= 44.0)
     assert (np.minimum(np.abs(pts[side, 0] - 23.0), np.abs(pts[side, 0] - 25.0)) <= step + 1e-9).all(), pts.tolist()
+    # its ends square: the caps' corners (a cap 2 px wide has no straight run for the corner test)
+    for corner in ((23.0, 2.0), (25.0, 2.0), (23.0, 46.0), (25.0, 46.0)):
+        assert np.hypot(*(pts - corner).T).min() <= step, (corner, pts.tolist())
     # the halves of the centre square: their corners and the junctions with the bar on the pixel corners
     for r in regions:
         if r.label == 3:
@@ -183,3 +186,23 @@ def test_incoming_lines_stop_where_a_precise_contour_turns_back():
     assert subpixel._incoming(u_turn, False) == 5  # 2 JUNCTION px along it
     straight = np.stack([np.zeros(10), np.arange(10.0)], axis=1)
     assert subpixel._incoming(straight, True) == 2 * subpixel.JUNCTION + 1
+
+
+@pytest.mark.parametrize("width", [1, 2, 3, 4])
+def test_the_ends_of_bars_are_square(width):
+    """A bar of flat colour 1-4 px wide ends in two corners of the pixel lattice, not in a round blob."""
+    labels = np.zeros((24, 24), np.int32)
+    labels[4:20, 10:10 + width] = 1
+    rgb = np.array([[0.95, 0.93, 0.9], [0.2, 0.25, 0.6]], np.float32)[labels]
+    regions, _ = build_regions(labels, rgb=rgb)
+    pts = np.concatenate([r for r in regions if r.label == 1][0].outline)
+    for corner in ((10.0, 4.0), (10.0 + width, 4.0), (10.0, 20.0), (10.0 + width, 20.0)):
+        assert np.hypot(*(pts - corner).T).min() <= 1.0 / subpixel.GRID, (corner, pts.tolist())
+
+
+def test_a_staircase_keeps_its_cuts():
+    """Steps of a staircase go the same way on both sides of a cut: no cap, the cuts stay (a diagonal
+    of pixels is read as the slanted border it stands for)."""
+    stairs = np.array([[0.0, 0.5], [0.0, 1.5], [0.0, 2.5], [0.5, 3.0], [1.5, 3.0], [2.0, 3.5], [2.0, 4.5],
+                       [2.0, 5.5], [6.0, 5.5], [6.0, 0.5]])
+    assert subpixel._caps(stairs, np.zeros(len(stairs)), subpixel.TOLERANCE) == []
