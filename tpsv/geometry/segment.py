@@ -673,7 +673,6 @@ def flat_regions(rgb: np.ndarray, min_size: int | None = None, mixed: bool = Fal
         uint8, or float in ``[0, 1]``.
     min_size : int, optional
         Smallest patch that is a region (default :func:`default_min_size`).
-
     mixed : bool
         Also return the share of the pixels read as anti-aliased borders (0:
         a crisp graphic, pixel art).
@@ -698,7 +697,8 @@ def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | N
     # a cheap look first, at about FLAT_LOOK pixels of rows spread over the picture: in a photo hardly a
     # pixel equals its neighbours
     rows = np.arange(0, H - 1, max(1, (H - 1) * W // FLAT_LOOK))
-    same = int((rgb[rows, 1:] == rgb[rows, :-1]).all(axis=2).sum()) + int((rgb[rows + 1] == rgb[rows]).all(axis=2).sum())
+    same = (int((rgb[rows, 1:] == rgb[rows, :-1]).all(axis=2).sum())
+            + int((rgb[rows + 1] == rgb[rows]).all(axis=2).sum()))
     if same < FLAT_SHARE * len(rows) * (2 * W - 1):
         return none
     # colours as exact integer keys (16 bits a channel holds every 8- and 16-bit value apart)
@@ -753,9 +753,9 @@ def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | N
     # but thick patches of varied colours are little of a drawing: a photo on a flat background
     core = cv2.erode(odd2.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)),
                      iterations=FLAT_THIN) > 0
-    thick = np.zeros(k, bool)
-    thick[shapes[core]] = True
-    if int(odd.sum()) - int(mine.sum()) + int((mine & thick[shapes]).sum()) > FLAT_LEFT * n_px:
+    thick_shape = np.zeros(k, bool)
+    thick_shape[shapes[core]] = True
+    if int(odd.sum()) - int(mine.sum()) + int((mine & thick_shape[shapes]).sum()) > FLAT_LEFT * n_px:
         return none
     # a shape's anti-aliased rim: its pixels less than half of the shape's own colour (that of its pixels
     # farthest from the patch they joined) over that patch's go to the patch
@@ -768,7 +768,8 @@ def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | N
     np.maximum.at(far, sid, np.where(np.isfinite(dist), dist, 0.0))
     core_px = dist >= 0.75 * far[sid]
     cnt = np.maximum(np.bincount(sid[core_px], minlength=k), 1)
-    own_col = np.stack([np.bincount(sid[core_px], weights=c[core_px, j], minlength=k) for j in range(3)], axis=1) / cnt[:, None]
+    own_col = np.stack([np.bincount(sid[core_px], weights=c[core_px, j], minlength=k) for j in range(3)],
+                       axis=1).astype(np.float64) / cnt[:, None]
     d = own_col[sid] - base
     t = ((c - base) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-12)
     stay = (grown < 0) | (t >= 0.5)

@@ -384,7 +384,8 @@ class BorderReading:
         contrast = np.sqrt(dd)
         texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
         whole = a >= 1.0 - SATURATED
-        ys, xs, across, a, normal, contrast, texture = (v[whole] for v in (ys, xs, across, a, normal, contrast, texture))
+        ys, xs, across, a, normal, contrast, texture = (v[whole] for v in
+                                                        (ys, xs, across, a, normal, contrast, texture))
         flat = ys.astype(np.int64) * W + xs
         order = np.argsort(flat, kind="stable")
         self._second = (flat[order], across[order].astype(np.int32), (0.5 + _coverage_distance(a, normal))[order],
