@@ -646,6 +646,62 @@ def _grow(labels: np.ndarray, rgb: np.ndarray, colour: np.ndarray, steps: int | 
     return todo.size == 0
 
 
+def _no_mixes(labels: np.ndarray, rgb: np.ndarray, colour: np.ndarray, outside: np.ndarray) -> tuple[np.ndarray, float]:
+    """Which pixels ``outside`` the patches (H, W) are no mix of the patch they grew into (``labels``,
+    -1: none reached them) and a patch around them, 1 to :data:`FLAT_REACH` px away in 8 directions
+    (an anti-aliased border may be wider than the 3 x 3 neighbourhood); ``rgb`` (H, W, 3).
+
+    Returns the flat mask of those pixels and the share of all pixels that are mixes.
+    """
+    H, W = labels.shape
+    rest = np.flatnonzero(outside.ravel())
+    odd = np.zeros(H * W, bool)
+    if rest.size == 0:
+        return odd, 0.0
+    ys, xs = np.divmod(rest, W)
+    own = labels.ravel()[rest]
+    around = []
+    for r in sorted({1, 2, 4, FLAT_REACH}):
+        for dy in (-r, 0, r):
+            for dx in (-r, 0, r) if dy else (-r, r):
+                lab = labels[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)]
+                around.append(np.where(lab >= 0, lab, own))
+    reached = own >= 0
+    err = np.full(rest.size, np.inf)
+    err[reached] = _mix_distance(rgb.reshape(-1, 3)[rest[reached]].astype(np.float64), colour[own[reached]],
+                                 colour[np.stack(around, axis=1)[reached]])
+    odd[rest[err > FLAT_MIX]] = True
+    return odd, float((err <= FLAT_MIX).sum()) / (H * W)
+
+
+def _shapes_cut_at_half(labels: np.ndarray, rgb: np.ndarray, colour: np.ndarray, shapes: np.ndarray, k: int,
+                        mine: np.ndarray) -> np.ndarray:
+    """Label the pixels ``mine`` of the shapes ``shapes`` (``0 .. k-1``) ``len(colour) + shape`` in
+    ``labels``, in place, but for each shape's anti-aliased rim: its pixels less than half of the
+    shape's own colour over the colour of the patch they grew into stay with that patch. A shape's
+    own colour is the mean of its pixels at least 3/4 as far from their patches' colours as its
+    farthest. Returns the shapes' colours (k, 3); ``rgb``: (H * W, 3).
+    """
+    W = labels.shape[1]
+    n = len(colour)
+    ys, xs = np.nonzero(mine)
+    sid, grown = shapes[ys, xs], labels[ys, xs]
+    c = rgb[ys * W + xs].astype(np.float64)
+    base = colour[np.maximum(grown, 0)]
+    dist = np.where(grown >= 0, np.sqrt(((c - base) ** 2).sum(axis=1)), np.inf)
+    far = np.zeros(k)
+    np.maximum.at(far, sid, np.where(np.isfinite(dist), dist, 0.0))
+    core = dist >= 0.75 * far[sid]
+    cnt = np.maximum(np.bincount(sid[core], minlength=k), 1)
+    own = np.stack([np.bincount(sid[core], weights=c[core, j], minlength=k) for j in range(3)],
+                   axis=1).astype(np.float64) / cnt[:, None]
+    d = own[sid] - base
+    t = ((c - base) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-12)
+    stay = (grown < 0) | (t >= 0.5)
+    labels[ys[stay], xs[stay]] = n + sid[stay]
+    return own
+
+
 def flat_regions(rgb: np.ndarray, min_size: int | None = None, mixed: bool = False):
     """The regions of a flat-colour graphic, or None when ``rgb`` is not one.
 
@@ -724,26 +780,7 @@ def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | N
     # neighbouring region nearest in colour
     _grow(labels, flat_rgb, colour, FLAT_REACH)
     # the pixels outside the patches: a mix of the regions around them, or a shape of their own
-    rest = np.flatnonzero(~seed[comp].ravel())
-    odd = np.zeros(n_px, bool)
-    mix = 0.0
-    if rest.size:
-        ys, xs = np.divmod(rest, W)
-        own = labels.ravel()[rest]
-        # the regions around: 1 to FLAT_REACH px away in 8 directions (an anti-aliased border may be
-        # wider than the 3 x 3 neighbourhood)
-        around = []
-        for r in sorted({1, 2, 4, FLAT_REACH}):
-            for dy in (-r, 0, r):
-                for dx in (-r, 0, r) if dy else (-r, r):
-                    lab = labels[np.clip(ys + dy, 0, H - 1), np.clip(xs + dx, 0, W - 1)]
-                    around.append(np.where(lab >= 0, lab, own))
-        reached = own >= 0
-        err = np.full(rest.size, np.inf)
-        err[reached] = _mix_distance(flat_rgb[rest[reached]].astype(np.float64), colour[own[reached]],
-                                     colour[np.stack(around, axis=1)[reached]])
-        odd[rest[err > FLAT_MIX]] = True
-        mix = float((err <= FLAT_MIX).sum()) / n_px
+    odd, mix = _no_mixes(labels, rgb, colour, ~seed[comp])
     # connected pixels that are no mix, enough of them: a shape of its own (a line one pixel wide,
     # anti-aliased text whose strokes hold no pixel of their pure colour, a small picture on the page)
     odd2 = odd.reshape(H, W)
@@ -757,26 +794,11 @@ def _flat_regions(rgb: np.ndarray, min_size: int | None) -> tuple[np.ndarray | N
     thick_shape[shapes[core]] = True
     if int(odd.sum()) - int(mine.sum()) + int((mine & thick_shape[shapes]).sum()) > FLAT_LEFT * n_px:
         return none
-    # a shape's anti-aliased rim: its pixels less than half of the shape's own colour (that of its pixels
-    # farthest from the patch they joined) over that patch's go to the patch
-    ys, xs = np.nonzero(mine)
-    sid, grown = shapes[ys, xs], labels[ys, xs]
-    c = flat_rgb[ys * W + xs].astype(np.float64)
-    base = colour[np.maximum(grown, 0)]
-    dist = np.where(grown >= 0, np.sqrt(((c - base) ** 2).sum(axis=1)), np.inf)
-    far = np.zeros(k)
-    np.maximum.at(far, sid, np.where(np.isfinite(dist), dist, 0.0))
-    core_px = dist >= 0.75 * far[sid]
-    cnt = np.maximum(np.bincount(sid[core_px], minlength=k), 1)
-    own_col = np.stack([np.bincount(sid[core_px], weights=c[core_px, j], minlength=k) for j in range(3)],
-                       axis=1).astype(np.float64) / cnt[:, None]
-    d = own_col[sid] - base
-    t = ((c - base) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-12)
-    stay = (grown < 0) | (t >= 0.5)
-    labels[ys[stay], xs[stay]] = n + sid[stay]
+    # the shapes without their anti-aliased rims, numbered from n
+    shape_colour = _shapes_cut_at_half(labels, flat_rgb, colour, shapes, k, mine)
     labels[odd2 & ~mine] = -1
     # what is left (a few crumbs) to the neighbouring region nearest in colour
-    if not _grow(labels, flat_rgb, np.concatenate([colour, own_col]), None):
+    if not _grow(labels, flat_rgb, np.concatenate([colour, shape_colour]), None):
         return none
     labels, count = _renumber(labels)
     if count > FLAT_MAX_REGIONS:
