@@ -140,6 +140,9 @@ def test_a_crisp_graphic_is_magnified_by_its_patches_outlines():
     assert metrics.psnr(exact, big) > 45.0
     _, one_region = magnify_raster(rgb, (80, 80), graphic="photo")
     assert len(_.regions) == 1 and metrics.psnr(exact, one_region) < 30.0
+    # with its label map it is drawn the same way (traced and refined, the squares had halos)
+    model, with_labels = magnify_raster(rgb, (80, 80), labels=labels)
+    assert len(model.regions) == 10 and metrics.psnr(exact, with_labels) > 45.0
 
 
 def test_a_photo_is_magnified_as_one_region(small_rgb):

@@ -160,7 +160,7 @@ def render(ctx, path, output, scale, size, antialias, format_name, quality, dept
 @click.option("--factor", type=SCALE, required=True, help="Magnification factor.")
 @click.option("--labels", type=click.Path(dir_okay=False), default=None,
               help="For raster input: label map whose region borders stay sharp (default: one region; a "
-                   "flat-colour graphic: its patches of one colour, drawn by their outlines).")
+                   "flat-colour graphic: its patches of one colour).")
 @click.option("--fit-iterations", type=click.IntRange(0, 50), default=6, show_default=True,
               help="For raster input: back-projection steps fitting the colours to the input.")
 @click.option("--refine-iterations", type=click.IntRange(0, 200), default=40, show_default=True,
@@ -186,7 +186,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
     (tpsv.rendering.magnify, .refine). `tpsv render` draws a .tpsv as it is.
     """
     # (the dense fit's modules, imported here: `tpsv render` needs none of them)
-    from ..rendering.magnify import graphic_labels, magnify_raster, refine_steps
+    from ..rendering.magnify import magnify_raster, picture_kind, refine_steps
 
     check_json_target(as_json, output)
     if is_tpsv(path):
@@ -209,12 +209,10 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
         # the renderer's size limits, checked before the fit rather than at its final render
         output_size(SimpleNamespace(width=w, height=h), width=size[0], height=size[1])
         fmt.check_size(*size)
-        # without a label map, a flat-colour graphic is drawn by its patches' outlines (a crisp one unrefined)
-        graphic = "photo"
-        if lab is None:
-            flat, crisp = graphic_labels(rgb)
-            if flat is not None:
-                lab, graphic = flat, "crisp" if crisp else "smooth"
+        # a flat-colour graphic is drawn by fitted outlines (without a label map, of its own patches), a crisp
+        # one unrefined
+        graphic, flat = picture_kind(rgb)
+        lab = flat if lab is None else lab
         steps = 0 if graphic == "crisp" else refine_steps((w, h), size, refine_iterations)
         with progress_bar(ctx, fit_iterations + steps, "magnify") as bar:
             model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device,

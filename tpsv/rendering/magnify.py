@@ -138,6 +138,15 @@ def graphic_labels(rgb: np.ndarray) -> tuple[np.ndarray | None, bool]:
     return labels, labels is not None and mixed == 0.0
 
 
+def picture_kind(rgb: np.ndarray) -> tuple[str, np.ndarray | None]:
+    """``("crisp" | "smooth", labels)`` for a flat-colour graphic without or with anti-aliased pixels
+    (:func:`graphic_labels`), ``("photo", None)`` otherwise: how :func:`magnify_raster` draws it."""
+    labels, crisp = graphic_labels(rgb)
+    if labels is None:
+        return "photo", None
+    return ("crisp" if crisp else "smooth"), labels
+
+
 def refine_steps(input_size: tuple[int, int], size: tuple[int, int], refine_iterations: int) -> int:
     """Refinement steps :func:`magnify_raster` runs: ``refine_iterations`` when ``size`` is larger than
     ``input_size`` (both (width, height)) and not smaller in either direction, else 0."""
@@ -158,13 +167,13 @@ def magnify_raster(
     """Magnify a photo to ``size`` = (width, height): dense model + back-projection,
     then edge-preserving refinement of the picture.
 
-    A flat-colour graphic (a drawing, a logo, a screenshot) magnified without
-    a label map takes its patches of one colour as regions
-    (:func:`graphic_labels`), with outlines fitted to its edges. A crisp one
-    (no anti-aliased pixel) is not refined: its edges are the vector
-    outlines, and the refinement's steps put halos inside its shapes (a grid
-    of squares at 8x: 57.6 dB unrefined, 29.7 refined, against the exact
-    picture); an anti-aliased one is (a logo: 29.2 dB refined, 28.1 not).
+    A flat-colour graphic (a drawing, a logo, a screenshot) gets outlines
+    fitted to its edges and, without a label map, its patches of one colour
+    as regions (:func:`graphic_labels`). A crisp one (no anti-aliased pixel)
+    is not refined: its edges are the vector outlines, and the refinement's
+    steps put halos inside its shapes (a grid of squares at 8x: 57.6 dB
+    unrefined, 29.7 refined, against the exact picture, with its label map as
+    without); an anti-aliased one is (a logo: 29.2 dB refined, 28.1 not).
 
     Parameters
     ----------
@@ -182,9 +191,10 @@ def magnify_raster(
         Steps of :func:`tpsv.rendering.refine.refine_magnified` (0: the model's
         render as it is). Only a picture larger than ``rgb`` is refined.
     graphic : str, optional
-        ``labels`` are a flat graphic's (:func:`graphic_labels`): ``"crisp"``
+        The picture is a flat graphic (:func:`picture_kind`): ``"crisp"``
         (outlines fitted, no refinement) or ``"smooth"`` (outlines fitted);
-        ``"photo"``: neither. Default: found out when ``labels`` is None.
+        ``"photo"``: neither. Default: found out (and without ``labels``, the
+        graphic's own regions taken).
 
     Returns
     -------
@@ -205,11 +215,8 @@ def magnify_raster(
                         f"({MAX_ARRAY_PIXELS:,} px); vectorize it and render the .tpsv instead")
     h, w = rgb.shape[:2]
     if graphic is None:
-        graphic = "photo"
-        if labels is None:
-            found, crisp = graphic_labels(rgb)
-            if found is not None:
-                labels, graphic = found, "crisp" if crisp else "smooth"
+        graphic, found = picture_kind(rgb)
+        labels = found if labels is None else labels
     steps = 0 if graphic == "crisp" else refine_steps((w, h), size, refine_iterations)
     total = iterations + steps
     model, pixel = dense_model(rgb, labels, fitted=graphic != "photo")
