@@ -14,6 +14,11 @@ while keeping the same area average: the TPS is a smooth interpolant, and its
 edges widen with the factor. On the bundled samples the result beats bicubic
 and Lanczos upscaling in PSNR and GMSD (``tpsv bench``).
 
+A flat-colour graphic (a drawing, a logo, a screenshot: :func:`picture_kind`)
+is drawn by outlines fitted to its edges, its patches of one colour as regions
+when no label map is given, and one without anti-aliasing is not refined:
+its edges are those outlines (``tpsv bench``'s graphics table).
+
 A ``.tpsv`` file is magnified the same way without the fit
 (:func:`magnify_model`): its render at the size, refined under the area
 constraint of its own render at the model's size. Its detail layer is
