@@ -274,6 +274,38 @@ def _sides(comp, border, rgb, ys, xs, own, across):
     return (*out, normal)
 
 
+def _most_frequent(v: np.ndarray) -> np.ndarray:
+    """Per row of ``v`` (n, 8) (-1: none), its most frequent value (ties: the smaller), -1 where none."""
+    best = np.full(len(v), -1, np.int64)
+    count = np.zeros(len(v), np.int64)
+    for k in range(v.shape[1]):
+        c = (v == v[:, k:k + 1]).sum(axis=1)
+        take = (v[:, k] >= 0) & ((c > count) | ((c == count) & (v[:, k] < best)))
+        best[take] = v[take, k]
+        count[take] = c[take]
+    return best
+
+
+def _read(comp, border, rgb, ys, xs, own, across):
+    """Border pixels ``(ys, xs)`` read against region ``across``: the share ``alpha`` of their own
+    region in their colour, the border's normal and the reading's trust."""
+    # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile)
+    n = len(ys)
+    mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
+    sd_a, sd_b = np.empty(n), np.empty(n)
+    for a0 in range(0, n, SIDE_CHUNK):
+        k = slice(a0, a0 + SIDE_CHUNK)
+        mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], across[k])
+    d = mu_a - mu_b
+    dd = (d * d).sum(axis=1)
+    a = np.clip(((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12), 0.0, 1.0)
+    # a side whose colour varies (texture) is a poor reference: trust fades out as its
+    # spread goes from a quarter to a half of the contrast
+    contrast = np.sqrt(dd)
+    texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
+    return a, normal, np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
+
+
 class BorderReading:
     """Every border pixel of a component map: the region across and the colour reading.
 
@@ -323,46 +355,18 @@ class BorderReading:
         v = np.where(v != comp[ys, xs][:, None], v, -1)
         del neighbours, pad
         # the most frequent other region among the neighbours (ties: the smaller index)
-        best = np.full(len(ys), -1, np.int64)
-        count = np.zeros(len(ys), np.int64)
-        for k in range(8):
-            c = (v == v[:, k:k + 1]).sum(axis=1)
-            take = (v[:, k] >= 0) & ((c > count) | ((c == count) & (v[:, k] < best)))
-            best[take] = v[take, k]
-            count[take] = c[take]
+        best = _most_frequent(v)
         own = comp[ys, xs]
         self.across[ys, xs] = best
         # a pixel with another region on two sides (a line one pixel wide, a junction) is read against
         # the second most frequent one too, so that its field does not leave that border to the
         # smoothed mask (which put the borders of a one-pixel line 0.2 px into it)
-        second = np.full(len(ys), -1, np.int64)
-        count2 = np.zeros(len(ys), np.int64)
-        v2 = np.where(v != best[:, None], v, -1)
-        for k in range(8):
-            c = (v2 == v2[:, k:k + 1]).sum(axis=1)
-            take = (v2[:, k] >= 0) & ((c > count2) | ((c == count2) & (v2[:, k] < second)))
-            second[take] = v2[take, k]
-            count2[take] = c[take]
-        del v2
-        # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile)
-        n = len(ys)
-        mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
-        sd_a, sd_b = np.empty(n), np.empty(n)
-        for a0 in range(0, n, SIDE_CHUNK):
-            k = slice(a0, a0 + SIDE_CHUNK)
-            mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], best[k])
-        d = mu_a - mu_b
-        dd = (d * d).sum(axis=1)
-        a = ((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12)
-        a = np.clip(a, 0.0, 1.0)
+        second = _most_frequent(np.where(v != best[:, None], v, -1))
+        a, normal, trust = _read(comp, border, rgb, ys, xs, own, best)
         self.alpha[ys, xs] = a
         self.level[ys, xs] = 0.5 + _coverage_distance(a, normal)
         self._extrapolate(ys, xs, a, normal, own, best)
-        # a side whose colour varies (texture) is a poor reference: trust fades out as its
-        # spread goes from a quarter to a half of the contrast
-        contrast = np.sqrt(dd)
-        texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
-        self.trust[ys, xs] = np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
+        self.trust[ys, xs] = trust
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
         two = np.flatnonzero((second >= 0) & (a >= 1.0 - SATURATED))
         if two.size:
@@ -372,24 +376,13 @@ class BorderReading:
         """The reading of border pixels ``(ys, xs)`` against a second region ``across``, kept sparse
         (sorted flat indices, region across, level, trust): few pixels have one."""
         W = comp.shape[1]
-        n = len(ys)
-        mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
-        sd_a, sd_b = np.empty(n), np.empty(n)
-        for a0 in range(0, n, SIDE_CHUNK):
-            k = slice(a0, a0 + SIDE_CHUNK)
-            mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], across[k])
-        d = mu_a - mu_b
-        dd = (d * d).sum(axis=1)
-        a = np.clip(((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12), 0.0, 1.0)
-        contrast = np.sqrt(dd)
-        texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
+        a, normal, trust = _read(comp, border, rgb, ys, xs, own, across)
         whole = a >= 1.0 - SATURATED
-        ys, xs, across, a, normal, contrast, texture = (v[whole] for v in
-                                                        (ys, xs, across, a, normal, contrast, texture))
+        ys, xs, across, a, normal, trust = (v[whole] for v in (ys, xs, across, a, normal, trust))
         flat = ys.astype(np.int64) * W + xs
         order = np.argsort(flat, kind="stable")
         self._second = (flat[order], across[order].astype(np.int32), (0.5 + _coverage_distance(a, normal))[order],
-                        (np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture)[order])
+                        trust[order])
 
     def _second_in(self, window: tuple[slice, slice], region: int):
         """The second readings against ``region`` in ``window``: ``((rows, cols) in the window, level,
