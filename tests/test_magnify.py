@@ -118,23 +118,21 @@ def test_refined_magnification_beyond_one_picture_is_refused(small_model, monkey
 
 def _squares(scale=1):
     """Squares of flat colours between gutters one pixel wide, drawn at ``scale`` (nearest: no anti-aliasing)."""
-    rng = np.random.default_rng(2)
-    labels = np.zeros((20, 20), np.int32)
-    for i in range(3):
-        for j in range(3):
-            labels[2 + 6 * i:7 + 6 * i, 2 + 6 * j:7 + 6 * j] = 1 + 3 * i + j
-    colours = rng.uniform(0.0, 1.0, (10, 3)).astype(np.float32)
+    from tpsv.bench.drawings import grid_labels
+
+    labels = grid_labels(3)
+    colours = np.random.default_rng(2).uniform(0.0, 1.0, (10, 3)).astype(np.float32)
     return colours[np.repeat(np.repeat(labels, scale, 0), scale, 1)]
 
 
 def test_a_crisp_graphic_is_magnified_by_its_patches_outlines():
     """Without a label map, a flat-colour graphic takes its patches as regions and, with no anti-aliased
     pixel, is not refined: the refinement put halos inside the squares."""
-    from tpsv.rendering.magnify import graphic_labels
+    from tpsv.rendering.magnify import picture_kind
 
     rgb, exact = _squares(), _squares(4)
-    labels, crisp = graphic_labels(rgb)
-    assert labels is not None and crisp and labels.max() == 9
+    kind, labels = picture_kind(rgb)
+    assert kind == "crisp" and labels.max() == 9
     model, big = magnify_raster(rgb, (80, 80))
     assert len(model.regions) == 10
     assert metrics.psnr(exact, big) > 45.0
@@ -146,9 +144,9 @@ def test_a_crisp_graphic_is_magnified_by_its_patches_outlines():
 
 
 def test_a_photo_is_magnified_as_one_region(small_rgb):
-    from tpsv.rendering.magnify import graphic_labels
+    from tpsv.rendering.magnify import picture_kind
 
-    assert graphic_labels(small_rgb) == (None, False)
+    assert picture_kind(small_rgb) == ("photo", None)
     model, _ = magnify_raster(small_rgb, (2 * small_rgb.shape[1], 2 * small_rgb.shape[0]), iterations=1,
                               refine_iterations=1)
     assert len(model.regions) == 1

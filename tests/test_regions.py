@@ -155,12 +155,10 @@ def test_squares_between_one_pixel_lines_keep_their_pixel_outlines():
     """A line one pixel wide between two regions is read against both: its pixels used to say nothing
     of the second border, which the smoothed mask put 0.2 px into the line (squares of a grid grew,
     rounded, into their gutters)."""
-    rng = np.random.default_rng(3)
-    labels = np.zeros((26, 26), np.int32)
-    for i in range(4):
-        for j in range(4):
-            labels[2 + 6 * i:7 + 6 * i, 2 + 6 * j:7 + 6 * j] = 1 + 4 * i + j
-    colours = rng.uniform(0.0, 1.0, (17, 3)).astype(np.float32)
+    from tpsv.bench.drawings import grid_labels
+
+    labels = grid_labels(4)
+    colours = np.random.default_rng(3).uniform(0.0, 1.0, (17, 3)).astype(np.float32)
     regions, index = build_regions(labels, rgb=colours[labels])
     assert np.array_equal(index, labels)
     for r in regions:

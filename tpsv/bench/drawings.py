@@ -37,13 +37,19 @@ def _frames() -> tuple[np.ndarray, np.ndarray]:
     return labels, colours
 
 
+def grid_labels(n: int) -> np.ndarray:
+    """The label map of ``n x n`` squares of 5 px between gutters 1 px wide (``2 + 6 n`` px square:
+    a margin of 2 px before the first squares, 1 px after the last): 0 the gutters, the squares
+    ``1 .. n^2`` row by row."""
+    labels = np.zeros((2 + 6 * n, 2 + 6 * n), np.int32)
+    for i in range(n):
+        for j in range(n):
+            labels[2 + 6 * i:7 + 6 * i, 2 + 6 * j:7 + 6 * j] = 1 + n * i + j
+    return labels
+
+
 def _grid() -> tuple[np.ndarray, np.ndarray]:
-    labels = np.zeros((50, 50), np.int32)
-    for i in range(8):
-        for j in range(8):
-            labels[2 + 6 * i:7 + 6 * i, 2 + 6 * j:7 + 6 * j] = 1 + 8 * i + j
-    colours = np.random.default_rng(3).integers(0, 256, (65, 3))
-    return labels, colours
+    return grid_labels(8), np.random.default_rng(3).integers(0, 256, (65, 3))
 
 
 def _logo_scene(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -88,4 +94,4 @@ def drawing(name: str, scale: int = 1) -> np.ndarray:
     return img.astype(np.float32)
 
 
-__all__ = ["DENSITY", "NAMES", "drawing"]
+__all__ = ["DENSITY", "NAMES", "drawing", "grid_labels"]

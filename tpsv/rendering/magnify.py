@@ -133,23 +133,17 @@ def back_project(
     return model
 
 
-def graphic_labels(rgb: np.ndarray) -> tuple[np.ndarray | None, bool]:
-    """The regions of a flat-colour graphic (``tpsv.geometry.segment.flat_regions``; None for a
-    photo) and whether it is crisp (no pixel read as an anti-aliased border: pixel art, a diagram
-    drawn without anti-aliasing)."""
+def picture_kind(rgb: np.ndarray) -> tuple[str, np.ndarray | None]:
+    """How :func:`magnify_raster` draws ``rgb``: ``("crisp", labels)`` for a flat-colour graphic
+    without anti-aliased pixels (pixel art, a diagram drawn without anti-aliasing), ``("smooth",
+    labels)`` for one with them, its regions by ``tpsv.geometry.segment.flat_regions``; ``("photo",
+    None)`` otherwise."""
     from ..geometry.segment import flat_regions
 
     labels, mixed = flat_regions(rgb, mixed=True)
-    return labels, labels is not None and mixed == 0.0
-
-
-def picture_kind(rgb: np.ndarray) -> tuple[str, np.ndarray | None]:
-    """``("crisp" | "smooth", labels)`` for a flat-colour graphic without or with anti-aliased pixels
-    (:func:`graphic_labels`), ``("photo", None)`` otherwise: how :func:`magnify_raster` draws it."""
-    labels, crisp = graphic_labels(rgb)
     if labels is None:
         return "photo", None
-    return ("crisp" if crisp else "smooth"), labels
+    return ("crisp" if mixed == 0.0 else "smooth"), labels
 
 
 def refine_steps(input_size: tuple[int, int], size: tuple[int, int], refine_iterations: int) -> int:
@@ -174,7 +168,7 @@ def magnify_raster(
 
     A flat-colour graphic (a drawing, a logo, a screenshot) gets outlines
     fitted to its edges and, without a label map, its patches of one colour
-    as regions (:func:`graphic_labels`). A crisp one (no anti-aliased pixel)
+    as regions (:func:`picture_kind`). A crisp one (no anti-aliased pixel)
     is not refined: its edges are the vector outlines, and the refinement's
     steps put halos inside its shapes (a grid of squares at 8x: 57.6 dB
     unrefined, 29.7 refined, against the exact picture, with its label map as
