@@ -114,7 +114,7 @@ def test_blur_map_round_trips_exactly():
     m = with_map(halves(), 0.5, 1.25)
     data = codec.encode(m)
     h = layout.parse_header(data)
-    assert h.version == 7 and h.has_blur_map
+    assert h.version == layout.VERSION and h.has_blur_map
     back = codec.decode(data)
     assert_models_identical(codec.quantize(m), back)
     # the cells along the border as they were, two rings around them filled, no more

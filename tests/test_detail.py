@@ -192,14 +192,14 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     model = codec.decode(textured.data)
     d = model.detail
     assert d.texels.dtype == np.uint16 and d.texels.shape == (model.height, model.width, 3)
-    assert d.payload[4:12] == b"ftypavif"
-    assert detail_codec.image_sizes(d.payload) == [(model.width, 3 * model.height)]  # wider than tall: stacked
+    assert len(d.payload) == 1 and d.payload[0][4:12] == b"ftypavif"
+    assert detail_codec.image_sizes(d.payload[0]) == [(model.width, 3 * model.height)]  # wider than tall: stacked
     again = codec.decode(codec.encode(model))
     assert again.detail == d
     assert codec.encode(model) == textured.data
     assert codec.encode(codec.quantize(model)) == textured.data
     sizes = codec.section_sizes(textured.data)
-    assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload)
+    assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload[0])
     assert struct.unpack_from("<HH", textured.data, 8) == (
         layout.VERSION, layout.FLAG_DETAIL | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP)
 
@@ -207,7 +207,7 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
 def test_a_tall_texture_puts_its_planes_side_by_side():
     texels = (np.arange(7 * 3 * 3) % 1024).astype(np.uint16).reshape(7, 3, 3)
     payload = detail_codec.encode_texels(texels, 100)
-    assert detail_codec.image_sizes(payload) == [(9, 7)]
+    assert len(payload) == 1 and detail_codec.image_sizes(payload[0]) == [(9, 7)]
     back = detail_codec.decode_texels(payload, 3, 7)
     assert back.shape == (7, 3, 3) and np.abs(back.astype(int) - texels).max() <= 2
 
@@ -225,7 +225,7 @@ def test_textures_up_to_a_megapixel_are_coded_carefully(monkeypatch):
     texels = np.clip(512 + smooth - smooth.mean(), 0, 1023).astype(np.uint16)
     careful = detail_codec.encode_texels(texels, 60)
     monkeypatch.setattr(detail_codec, "CAREFUL_TEXELS", 0)
-    assert len(careful) < len(detail_codec.encode_texels(texels, 60))
+    assert len(careful[0]) < len(detail_codec.encode_texels(texels, 60)[0])
 
 
 def _detail_map(data: bytes) -> dict:
@@ -306,6 +306,79 @@ def test_hostile_detail_sections_are_refused(textured):
     struct.pack_into("<I", v2, 68, zlib.crc32(bytes(v2[:68])))
     _reject(bytes(v2), "unsupported flags 0x0001")
     _reject(data[:layout.parse_header(data).detail_offset + 3], "truncated")
+
+
+def test_the_image_is_cut_into_bands_by_its_size_alone():
+    """One band per 2^18 texels, heights a multiple of 64 rows, the last band never empty; the
+    bands tile the image exactly (docs/FORMAT.md, detail)."""
+    assert detail_codec.band_count(512, 512) == 3  # 1536 x 512: the three planes
+    assert detail_codec.band_count(451, 300) == 2
+    assert detail_codec.band_count(64, 42) == 1
+    assert detail_codec.band_count(1, 1) == 1
+    assert detail_codec.band_count(4000, 3000) == 16  # 9000 rows in bands of 576
+    for w, h in [(1, 1), (3, 700), (451, 300), (512, 512), (4000, 3000), (7000, 5000), (65535, 1024)]:
+        rows, cols = detail_codec.image_shape(w, h)
+        n = detail_codec.band_count(w, h)
+        spans = detail_codec.band_rows(rows, n)
+        assert 1 <= n <= detail_codec.MOST_BANDS and spans[0][0] == 0 and spans[-1][1] == rows
+        assert all(a < b and b == c for (a, b), (c, _) in zip(spans, spans[1:] + [(rows, None)]))
+        assert all((b - a) % detail_codec.BAND_ALIGN == 0 for a, b in spans[:-1])
+    with pytest.raises(TpsvFormatError, match="cannot be cut into 3 bands"):
+        detail_codec.band_rows(128, 3)  # bands of 64 rows: the third would be empty
+    with pytest.raises(TpsvFormatError, match="1..1024"):
+        detail_codec.band_rows(10**6, 1025)
+
+
+@pytest.fixture()
+def banded(textured, monkeypatch):
+    """The textured file with its texture coded in two bands (smaller bands asked for)."""
+    from tpsv.encode.detail import code_texels
+
+    model = codec.decode(textured.data)
+    rows, cols = detail_codec.image_shape(model.width, model.height)
+    monkeypatch.setattr(detail_codec, "BAND_TEXELS", rows * cols // 2 + 1)
+    payload, texels = code_texels(model.detail.texels, 75)
+    assert len(payload) == 2
+    model.detail = dataclasses.replace(model.detail, payload=payload, texels=texels)
+    return model, codec.encode(model)
+
+
+def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
+    model, data = banded
+    back = codec.decode(data)
+    assert back.detail == model.detail and codec.encode(back) == data
+    assert isinstance(_detail_map(data)["image"], list)
+    # each band is an AVIF file of its rows; together the same texture as in one piece, nearly
+    one = codec.decode(textured.data).detail.texels
+    assert np.abs(back.detail.texels.astype(int) - one).mean() < 4
+    rows, cols = detail_codec.image_shape(model.width, model.height)
+    assert [detail_codec.image_sizes(b)[0] for b in back.detail.payload] == [(cols, 128), (cols, rows - 128)]
+    # a version-7 decoder's rule: the image is one bin there
+    import zlib
+
+    v7 = bytearray(data)
+    struct.pack_into("<H", v7, 8, 7)
+    struct.pack_into("<I", v7, 68, zlib.crc32(bytes(v7[:68])))
+    _reject(bytes(v7), "image is not a bin$")
+
+
+def test_hostile_bands_are_refused(banded):
+    _, data = banded
+    base = _detail_map(data)
+    first, second = base["image"]
+    cases = [
+        ([first], "array of 2..1024 bins"),
+        ([first, "text"], "array of 2..1024 bins"),
+        ([first] * 1025, "exceeds the bound"),  # refused from the sizes alone
+        ([b"x"] * 1025, "array of 2..1024 bins"),
+        ([first, second, second, second], "cannot be cut into 4 bands"),
+        ([second, first], "declares|decodes to"),
+        ([first, first], "declares|decodes to"),
+        ([first, second[:len(second) // 2]], "cannot be decoded|bad size"),
+        ([first, _bigger_ispe(second, 60000, 60000)], "declares 60000x60000"),
+    ]
+    for image, match in cases:
+        _reject(_with_detail(data, {**base, "image": image}), match)
 
 
 # ------------------------------------------------------------------ rendering
@@ -403,7 +476,7 @@ def test_crossmap_carries_the_source_texture(photo, textured):
     O2, dS2, dT2 = flipped.detail.frame[1]
     assert np.allclose(O2, O + dS) and np.allclose(dS2, -dS) and np.allclose(dT2, dT)
     # from another file: the other texture cannot be pointed into, so region 1 goes plain
-    other = dataclasses.replace(model, detail=dataclasses.replace(model.detail, payload=model.detail.payload + b"x"))
+    other = dataclasses.replace(model, detail=dataclasses.replace(model.detail, payload=model.detail.payload + (b"x",)))
     assert crossmap(model, 1, source=other, source_region=0).detail.mode[1] == DETAIL_OFF
 
 

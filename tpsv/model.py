@@ -242,10 +242,11 @@ class Detail:
 
     Attributes
     ----------
-    payload : bytes
+    payload : tuple of bytes
         The texture as stored: a monochrome 10-bit AVIF image of the three
-        planes Y, Cb, Cr one below the other (``w x 3h``), kept so that
-        writing the model again gives the same bytes.
+        planes Y, Cb, Cr one below the other (``w x 3h``), in one or more
+        bands of rows, each an AVIF file (``tpsv.codec.detail.band_rows``),
+        kept so that writing the model again gives the same bytes.
     texels : ndarray, shape (h, w, 3), uint16
         Decoded texture, (Y, Cb, Cr) of the residual, each
         ``(texel - DETAIL_ZERO) / DETAIL_GAIN`` (:data:`DETAIL_YCC`).
@@ -259,7 +260,7 @@ class Detail:
         The quality the texture was coded at (1-100; informative).
     """
 
-    payload: bytes
+    payload: tuple
     texels: np.ndarray
     frame: np.ndarray
     mode: np.ndarray

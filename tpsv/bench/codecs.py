@@ -81,7 +81,7 @@ def _code(name: str, q, res8: np.ndarray, texels: np.ndarray) -> tuple[int, np.n
         return len(buf), (cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)[..., ::-1].astype(np.float64) - 512) / 2
     payload = encode_texels(texels, int(q))
     h, w = texels.shape[:2]
-    return len(payload), 255.0 * texel_rgb(decode_texels(payload, w, h))
+    return sum(map(len, payload)), 255.0 * texel_rgb(decode_texels(payload, w, h))
 
 
 def detail_codec_table(rgb: np.ndarray, labels: np.ndarray | None, device: str = "cpu") -> dict:

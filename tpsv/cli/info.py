@@ -45,7 +45,7 @@ def summary(data: bytes) -> dict:
         # the texture detail layer: None for a pure vector image
         "detail": None if d is None else {
             "quality": d.quality, "width": int(d.texels.shape[1]), "height": int(d.texels.shape[0]),
-            "bytes": codec.section_sizes(data)["detail"],
+            "bytes": codec.section_sizes(data)["detail"], "bands": len(d.payload),
             "regions_full": int((d.mode == DETAIL_FULL).sum()), "regions_luma": int((d.mode == DETAIL_LUMA).sum()),
         },
         "params": {
@@ -116,7 +116,8 @@ def info(path: str, as_json: bool) -> None:
         click.echo("  detail    none (pure vector image)")
     else:
         luma = f", {d['regions_luma']} luma only" if d["regions_luma"] else ""
-        click.echo(f"  detail    {d['width']}x{d['height']} texels, AVIF at quality {d['quality']}, {d['bytes']} B; "
+        click.echo(f"  detail    {d['width']}x{d['height']} texels, AVIF at quality {d['quality']}"
+                   f"{' in ' + str(d['bands']) + ' bands' if d['bands'] > 1 else ''}, {d['bytes']} B; "
                    f"{d['regions_full']} regions full{luma}")
     click.echo("  sections  " + ", ".join(f"{k} {v} B" for k, v in s["sections"].items()))
     click.echo("  params    " + _pairs(params))

@@ -4,11 +4,14 @@ Layout (``docs/FORMAT.md``, "Detail"): a msgpack map, zstd-framed like every
 section, with ``codec`` ("avif"), ``width`` and ``height`` of the texture,
 ``quality`` (1-100), ``frame`` (``R x 6`` little-endian int32, 1/16 px:
 origin, d/dS, d/dT of each region's rest frame), ``mode`` (``R`` bytes) and
-``image`` (a monochrome AVIF file, 10 bits: the residual's Y, Cb and Cr
-planes one below the other, ``width x 3 height``, or side by side when the
-texture is taller than wide; OpenCV's AVIF writer
-subsamples the chroma of colour images 2:1, which capped the PSNR of red on
-black at 37 dB, while planes in one grey image keep every texel).
+``image`` (monochrome AVIF, 10 bits: the residual's Y, Cb and Cr planes one
+below the other, ``width x 3 height``, or side by side when the texture is
+taller than wide; OpenCV's AVIF writer subsamples the chroma of colour images
+2:1, which capped the PSNR of red on black at 37 dB, while planes in one grey
+image keep every texel). Since version 8 that image may be cut into bands of
+whole rows, each an AVIF file of its own (``image`` an array of them): OpenCV
+codes one AVIF image on one thread, and the bands are coded (and decoded) on
+every host core at once (:func:`band_count`).
 
 The AVIF image is decoded by OpenCV's libavif. Before it is, the image's own
 declared sizes (every ``ispe`` property of its ISO-BMFF boxes) must fit the
@@ -44,6 +47,17 @@ AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
 #: Textures larger than this (texels) are coded at the fast speed: at speed 5 a 12-megapixel
 #: texture would take about a minute of the encoder.
 CAREFUL_TEXELS = 1 << 20
+#: Texels of a band the encoder aims at, and the most bands it writes (:func:`band_count`).
+#: Cutting costs bytes (each band's AVIF headers, mostly repeated, which zstd takes back, and
+#: libaom's choices made per image): the samples' files moved by -0.03..+0.05 dB BD-PSNR in
+#: 2 or 3 bands, a 12-megapixel photo's texture took 1.9 % more bytes in 4 or 16 bands and
+#: 5.4 % in 71 (docs/DESIGN.md, "Detail layer").
+BAND_TEXELS = 1 << 18
+MOST_BANDS = 16
+#: Band heights are multiples of this (AV1's 64-px superblocks stay where one image has them).
+BAND_ALIGN = 64
+#: The most bands an image may be cut into (a 40-megapixel photo's texture takes about 460).
+MAX_BANDS = 1024
 #: AVIF quality at tpsv quality 100 (100 would be lossless: ~16 bpp).
 MAX_AVIF_QUALITY = 98
 DEPTH = 10
@@ -74,20 +88,69 @@ def avif_speed(width: int, height: int) -> int:
     return FAST_AVIF_SPEED if int(width) * int(height) > CAREFUL_TEXELS else AVIF_SPEED
 
 
-def encode_texels(texels: np.ndarray, quality: int) -> bytes:
-    """An AVIF file of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked) at tpsv ``quality``
+def band_height(rows: int, n: int) -> int:
+    """Rows of each of ``n`` bands of an image of ``rows`` rows (the last takes what is left):
+    ``rows / n`` rounded up to a multiple of :data:`BAND_ALIGN`."""
+    return BAND_ALIGN * -(-int(rows) // (BAND_ALIGN * int(n)))
+
+
+def band_rows(rows: int, n: int) -> list[tuple[int, int]]:
+    """``(first, end)`` rows of each of ``n`` bands of an image of ``rows`` rows.
+
+    Raises
+    ------
+    TpsvFormatError
+        ``n`` bands of :func:`band_height` rows leave a band empty, or ``n`` is not in
+        ``1..MAX_BANDS``.
+    """
+    if not 1 <= n <= MAX_BANDS:
+        raise TpsvFormatError(f"section detail: image in {n} bands, expected 1..{MAX_BANDS}")
+    step = band_height(rows, n)
+    if (n - 1) * step >= rows:
+        raise TpsvFormatError(f"section detail: {rows} rows cannot be cut into {n} bands")
+    return [(k * step, min(rows, (k + 1) * step)) for k in range(n)]
+
+
+def band_count(width: int, height: int) -> int:
+    """How many bands the AVIF image of a ``width x height`` texture is coded in: one per
+    :data:`BAND_TEXELS` texels of the image (1 up to 2^18), at most :data:`MOST_BANDS`, fewer
+    where the rows do not make that many bands of :func:`band_height` rows. It depends on the
+    size alone, so a file's bytes do not depend on the machine that wrote it."""
+    rows, cols = image_shape(width, height)
+    n = min(MOST_BANDS, max(1, -(-rows * cols // BAND_TEXELS)))
+    while n > 1 and (n - 1) * band_height(rows, n) >= rows:
+        n -= 1
+    return n
+
+
+def _pool():
+    from ..threads import host_cores, pool
+
+    return pool("avif", host_cores())
+
+
+def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
+    """The AVIF files of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked, in
+    :func:`band_count` bands of rows, coded at once on the host's cores) at tpsv ``quality``
     (the encoder's speed by the texture's size, :func:`avif_speed`)."""
     h, w = texels.shape[:2]
     params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, avif_speed(w, h),
               cv2.IMWRITE_AVIF_DEPTH, DEPTH]
-    planes = np.ascontiguousarray(np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h)))
-    try:
-        ok, buf = cv2.imencode(".avif", planes, params)
-    except cv2.error:
-        ok = False
-    if not ok:
-        raise TpsvError("this OpenCV cannot write AVIF images (the detail layer needs opencv>=5.0 with libavif)")
-    return buf.tobytes()
+    planes = np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h))
+
+    def code(rows):
+        try:
+            ok, buf = cv2.imencode(".avif", np.ascontiguousarray(planes[rows[0]:rows[1]]), params)
+        except cv2.error:
+            ok = False
+        if not ok:
+            raise TpsvError("this OpenCV cannot write AVIF images (the detail layer needs opencv>=5.0 with libavif)")
+        return buf.tobytes()
+
+    bands = band_rows(planes.shape[0], band_count(w, h))
+    if len(bands) == 1:
+        return (code(bands[0]),)
+    return tuple(_pool().map(code, bands))
 
 
 def _boxes(data: bytes, start: int, end: int, depth: int = 0):
@@ -134,24 +197,38 @@ def image_sizes(data: bytes) -> list[tuple[int, int]]:
     return sizes
 
 
-def decode_texels(data: bytes, width: int, height: int) -> np.ndarray:
-    """The texels (height, width, 3) uint16 of an AVIF file (planes stacked), checked before and after decoding."""
+def decode_texels(bands, width: int, height: int) -> np.ndarray:
+    """The texels (height, width, 3) uint16 of AVIF files (planes stacked, cut into
+    ``len(bands)`` bands of rows by :func:`band_rows`), checked before and after decoding."""
     rows, cols = image_shape(width, height)
-    for w, h in image_sizes(data):
-        if w > cols or h > rows:
-            raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture's image is {cols}x{rows}")
-    with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
+    spans = band_rows(rows, len(bands))
+    for data, (a, b) in zip(bands, spans):
+        for w, h in image_sizes(data):
+            if w > cols or h > b - a:
+                raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture's image"
+                                      f"{' band' if len(bands) > 1 else ''} is {cols}x{b - a}")
+    img = np.empty((rows, cols), np.uint16)
+
+    def decode(k):
+        a, b = spans[k]
         try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            band = cv2.imdecode(np.frombuffer(bands[k], np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error:
-            img = None
-    if img is None:
-        raise TpsvFormatError("section detail: the AVIF image cannot be decoded")
-    if img.dtype != np.uint16 or img.shape != (rows, cols):
-        raise TpsvFormatError(f"section detail: image decodes to {img.shape} {img.dtype}, "
-                              f"expected ({rows}, {cols}) uint16")
-    if int(img.max(initial=0)) > 1023:
-        raise TpsvFormatError("section detail: image is not 10-bit")
+            band = None
+        if band is None:
+            return "the AVIF image cannot be decoded"
+        if band.dtype != np.uint16 or band.shape != (b - a, cols):
+            return f"image decodes to {band.shape} {band.dtype}, expected ({b - a}, {cols}) uint16"
+        if int(band.max(initial=0)) > 1023:
+            return "image is not 10-bit"
+        img[a:b] = band
+        return None
+
+    with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
+        problems = [decode(0)] if len(bands) == 1 else list(_pool().map(decode, range(len(bands))))
+    for problem in problems:
+        if problem is not None:
+            raise TpsvFormatError(f"section detail: {problem}")
     return np.ascontiguousarray(np.stack(np.split(img, 3, axis=plane_axis(width, height)), axis=-1))
 
 
@@ -181,7 +258,7 @@ def quantize(detail: Detail | None, n_regions: int) -> Detail | None:
     if not 1 <= int(detail.quality) <= 100:
         raise ValueError(f"detail quality {detail.quality} not in 1..100")
     frame = quantize_frame(detail.frame, n_regions).reshape(n_regions, 3, 2) / FRAME_SCALE
-    return Detail(payload=bytes(detail.payload), texels=t, frame=frame, mode=mode.astype(np.uint8),
+    return Detail(payload=tuple(bytes(b) for b in detail.payload), texels=t, frame=frame, mode=mode.astype(np.uint8),
                   quality=int(detail.quality))
 
 
@@ -192,7 +269,8 @@ def pack_section(detail: Detail, n_regions: int) -> bytes:
         "codec": CODEC, "width": int(w), "height": int(h), "quality": int(detail.quality),
         "frame": quantize_frame(detail.frame, n_regions).astype("<i4").tobytes(),
         "mode": np.asarray(detail.mode, np.uint8).tobytes(),
-        "image": bytes(detail.payload),
+        # one band is stored as before version 8 (a file re-encoded keeps its bytes)
+        "image": bytes(detail.payload[0]) if len(detail.payload) == 1 else [bytes(b) for b in detail.payload],
     })
 
 
@@ -211,8 +289,14 @@ def unpack_section(raw: bytes, h: layout.Header) -> Detail:
     if mode.max(initial=0) > DETAIL_LUMA:
         raise TpsvFormatError(f"section detail: region mode {int(mode.max())} not in 0..{DETAIL_LUMA}")
     image = obj["image"]
-    if not isinstance(image, bytes):
-        raise TpsvFormatError("section detail: image is not a bin")
+    if isinstance(image, list) and h.version >= layout.BANDED_DETAIL_SINCE:
+        if not 2 <= len(image) <= MAX_BANDS or not all(isinstance(b, bytes) for b in image):
+            raise TpsvFormatError(f"section detail: image is not an array of 2..{MAX_BANDS} bins")
+        image = tuple(image)
+    elif isinstance(image, bytes):
+        image = (image,)
+    else:
+        raise TpsvFormatError("section detail: image is not a bin" + (" or an array of bins" if h.version >= layout.BANDED_DETAIL_SINCE else ""))
     texels = decode_texels(image, w, hh)
     return Detail(payload=image, texels=texels, frame=frame.reshape(R, 3, 2) / FRAME_SCALE, mode=mode,
                   quality=quality)

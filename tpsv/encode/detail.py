@@ -78,8 +78,9 @@ def texel_rgb(texels: np.ndarray) -> np.ndarray:
     return out
 
 
-def code_texels(texels: np.ndarray, quality: int) -> tuple[bytes, np.ndarray]:
-    """``(payload, decoded texels)`` of ``texels`` coded at ``quality`` (1-100)."""
+def code_texels(texels: np.ndarray, quality: int) -> tuple[tuple, np.ndarray]:
+    """``(payload, decoded texels)`` of ``texels`` coded at ``quality`` (1-100): the AVIF files
+    (``Detail.payload``) and what they decode to."""
     payload = detail_codec.encode_texels(texels, quality)
     h, w = texels.shape[:2]
     return payload, detail_codec.decode_texels(payload, w, h)
