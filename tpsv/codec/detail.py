@@ -54,6 +54,11 @@ CAREFUL_TEXELS = 1 << 20
 #: 5.4 % in 71 (docs/DESIGN.md, "Detail layer").
 BAND_TEXELS = 1 << 18
 MOST_BANDS = 16
+#: Texels coded (or decoded) at once, across the bands in flight: a libaom encoder holds about
+#: 20 bytes a texel and 30-50 MB besides (one 12-megapixel texture in one piece 690 MB, a band
+#: of 2.3M texels 75 MB), so a host of many cores codes that texture's 16 bands 7 at a time,
+#: within what the one piece took (all 16 at once raised a 16-core host's peak by 0.9 GB).
+TEXELS_AT_ONCE = 1 << 24
 #: Band heights are multiples of this (AV1's 64-px superblocks stay where one image has them).
 BAND_ALIGN = 64
 #: The most bands an image may be cut into (a 40-megapixel photo's texture takes about 460).
@@ -123,10 +128,12 @@ def band_count(width: int, height: int) -> int:
     return n
 
 
-def _pool():
+def _pool(band_texels: int):
+    """The host threads that code or decode bands of ``band_texels`` texels: one a core, no
+    more than :data:`TEXELS_AT_ONCE` texels in flight."""
     from ..threads import host_cores, pool
 
-    return pool("avif", host_cores())
+    return pool("avif", max(1, min(host_cores(), TEXELS_AT_ONCE // max(1, int(band_texels)))))
 
 
 def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
@@ -150,7 +157,7 @@ def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
     bands = band_rows(planes.shape[0], band_count(w, h))
     if len(bands) == 1:
         return (code(bands[0]),)
-    return tuple(_pool().map(code, bands))
+    return tuple(_pool(band_height(planes.shape[0], len(bands)) * planes.shape[1]).map(code, bands))
 
 
 def _boxes(data: bytes, start: int, end: int, depth: int = 0):
@@ -225,7 +232,8 @@ def decode_texels(bands, width: int, height: int) -> np.ndarray:
         return None
 
     with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
-        problems = [decode(0)] if len(bands) == 1 else list(_pool().map(decode, range(len(bands))))
+        problems = [decode(0)] if len(bands) == 1 else \
+            list(_pool((spans[0][1] - spans[0][0]) * cols).map(decode, range(len(bands))))
     for problem in problems:
         if problem is not None:
             raise TpsvFormatError(f"section detail: {problem}")
