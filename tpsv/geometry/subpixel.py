@@ -1112,6 +1112,21 @@ def _drop_orphan_holes(outlines: list, boxes: list[tuple[slice, slice]]) -> list
     return out
 
 
+#: Farthest (px along the contour) :func:`_sharpen_corners` looks from a corner: its longest run.
+_CORNER_REACH = max(max(far for _, far in CORNER_RUNS), 2 * CORNER_ARM)
+
+
+def _within_arc(ext: np.ndarray, n: int, at: float, total: float) -> np.ndarray:
+    """Indices (ascending) of the vertices of a closed contour of ``n`` vertices and perimeter ``total``
+    that lie within a little more than :data:`_CORNER_REACH` of arc position ``at`` (either way
+    round); ``ext`` is the arc of the vertices three times over, shifted by ``-total``, 0 and ``total``."""
+    reach = _CORNER_REACH + 1.0
+    if 2 * reach >= total:
+        return np.arange(n)
+    lo, hi = np.searchsorted(ext, [at - reach, at + reach])
+    return np.unique(np.arange(lo, hi) % n)
+
+
 def _arc(p: np.ndarray) -> np.ndarray:
     """Arc length at each vertex of a closed polygon, then the perimeter."""
     seg = np.diff(np.vstack([p, p[:1]]), axis=0)
@@ -1174,13 +1189,16 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
                 break
             if blocked[c]:
                 continue
-            blocked |= np.abs((s[:-1] - s[c] + total / 2) % total - total / 2) < 2 * CORNER_ARM
-            rel = (s[:-1] - s[c] + total / 2) % total - total / 2  # signed arc from the corner
+            # everything below looks at most _CORNER_REACH px along the contour from the corner: the
+            # points there, in index order (a long contour has thousands of candidates)
+            win = _within_arc(ext, n, s[c], total)
+            rel = (s[win] - s[c] + total / 2) % total - total / 2  # signed arc from the corner
+            blocked[win[np.abs(rel) < 2 * CORNER_ARM]] = True
             # the runs either side: long ones first (the rounding can reach 2-3 px along
             # the sides of a sharp corner), short ones for small shapes
             for near, far in CORNER_RUNS:
-                side_b = np.flatnonzero((rel > -far) & (rel < -near))
-                side_a = np.flatnonzero((rel > near) & (rel < far))
+                side_b = win[(rel > -far) & (rel < -near)]
+                side_a = win[(rel > near) & (rel < far)]
                 if len(side_b) < 3 or len(side_a) < 3 or total < 4 * far:
                     continue
                 cb, ub, eb = _line(p[side_b])
@@ -1197,11 +1215,12 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
             if np.hypot(*(corner - p[c])) > 1.5 or not (0 < corner[0] < W and 0 < corner[1] < H):
                 continue
             # the points the rounding moved off the two lines
-            db = np.abs((p - cb)[:, 0] * ub[1] - (p - cb)[:, 1] * ub[0])
-            da = np.abs((p - ca)[:, 0] * ua[1] - (p - ca)[:, 1] * ua[0])
+            q = p[win]
+            db = np.abs((q - cb)[:, 0] * ub[1] - (q - cb)[:, 1] * ub[0])
+            da = np.abs((q - ca)[:, 0] * ua[1] - (q - ca)[:, 1] * ua[0])
             # from the farthest point before the corner that is off its line to the farthest after
-            off_b = np.flatnonzero((rel > -far) & (rel <= 0) & (db > CORNER_ON_LINE))
-            off_a = np.flatnonzero((rel < far) & (rel >= 0) & (da > CORNER_ON_LINE))
+            off_b = win[(rel > -far) & (rel <= 0) & (db > CORNER_ON_LINE)]
+            off_a = win[(rel < far) & (rel >= 0) & (da > CORNER_ON_LINE)]
             lo = c - int(((c - off_b) % n).max(initial=0))
             hi = c + int(((off_a - c) % n).max(initial=0))
             zone = np.arange(lo, hi + 1) % n
