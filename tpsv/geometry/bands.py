@@ -66,16 +66,21 @@ def lab_image(rgb: np.ndarray, clip: bool = False) -> np.ndarray:
     return out
 
 
-def for_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> None:
-    """``fn((a, b))`` for every band of :func:`row_bands`, on a few host threads (numpy releases the
-    GIL in its heavy calls; each band's values are what one thread computes)."""
+def map_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> Iterator:
+    """What ``fn((a, b))`` returns for every band of :func:`row_bands`, in band order, the calls
+    made on a few host threads (numpy releases the GIL in its heavy calls; each band's values
+    are what one thread computes)."""
     bands = list(row_bands(height, width, pixels))
     workers = min(BAND_THREADS, host_cores(), len(bands))
     if workers > 1:
-        list(pool("bands", workers).map(fn, bands))
-    else:
-        for rows in bands:
-            fn(rows)
+        return pool("bands", workers).map(fn, bands)
+    return map(fn, bands)
 
 
-__all__ = ["BAND_PIXELS", "BAND_THREADS", "for_bands", "lab_image", "row_bands"]
+def for_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> None:
+    """``fn((a, b))`` for every band of :func:`row_bands`, on a few host threads (:func:`map_bands`)."""
+    for _ in map_bands(fn, height, width, pixels):
+        pass
+
+
+__all__ = ["BAND_PIXELS", "BAND_THREADS", "for_bands", "lab_image", "map_bands", "row_bands"]

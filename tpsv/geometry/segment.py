@@ -17,7 +17,7 @@ from skimage.segmentation import find_boundaries, random_walker, slic
 
 from ..errors import TpsvError
 from ..threads import host_cores, pool
-from .bands import for_bands, lab_image, row_bands
+from .bands import for_bands, lab_image, map_bands, row_bands
 
 
 def default_min_size(shape: tuple[int, int]) -> int:
@@ -528,13 +528,16 @@ def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:
     n = int(labels.max()) + 1
     # per region the normal equations of the fit over X = (x / w, y / h, 1), summed run by run of
     # one label along a row: sums over a run are differences of prefix sums along the row
-    xtx = np.zeros((n, 3, 3))
-    xtc = np.zeros((n, 3, 3))
-    ctc = np.zeros(n)
     xs = np.arange(w, dtype=np.float64) / max(w, 1)
     px = np.concatenate([[0.0], np.cumsum(xs)])
     pxx = np.concatenate([[0.0], np.cumsum(xs * xs)])
-    for a, b in row_bands(h, w):
+
+    def band(rows_ab):
+        # one band's sums, on a host thread; added up below in band order (the same values as one
+        # thread adding band after band)
+        a, b = rows_ab
+        xtx = np.zeros((n, 3, 3))
+        xtc = np.zeros((n, 3, 3))
         L = labels[a:b]
         rows = b - a
         start = np.ones((rows, w), bool)
@@ -569,7 +572,15 @@ def fill_residual(lab: np.ndarray, labels: np.ndarray) -> float:
             xtc[:, 0, j] += np.bincount(lab_r, sxc[:, j], n)
             xtc[:, 1, j] += np.bincount(lab_r, y * sc[:, j], n)
             xtc[:, 2, j] += np.bincount(lab_r, sc[:, j], n)
-        ctc += np.bincount(lab_r, pcc[rr, c1] - pcc[rr, c0], n)
+        return xtx, xtc, np.bincount(lab_r, pcc[rr, c1] - pcc[rr, c0], n)
+
+    xtx = np.zeros((n, 3, 3))
+    xtc = np.zeros((n, 3, 3))
+    ctc = np.zeros(n)
+    for bx, bc, bcc in map_bands(band, h, w):
+        xtx += bx
+        xtc += bc
+        ctc += bcc
     sq = ctc.copy()
     for r in range(n):
         beta = np.linalg.pinv(xtx[r]) @ xtc[r]
