@@ -362,6 +362,16 @@ def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
     _reject(bytes(v7), "image is not a bin$")
 
 
+def test_a_payload_of_one_bytes_object_is_the_image_in_one_piece(textured):
+    model = codec.decode(textured.data)
+    (one,) = model.detail.payload
+    model.detail = dataclasses.replace(model.detail, payload=one)
+    assert codec.encode(model) == textured.data
+    model.detail = dataclasses.replace(model.detail, payload=())
+    with pytest.raises(ValueError, match="1..1024 AVIF files"):
+        codec.encode(model)
+
+
 def test_hostile_bands_are_refused(banded):
     _, data = banded
     base = _detail_map(data)

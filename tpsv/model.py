@@ -246,7 +246,8 @@ class Detail:
         The texture as stored: a monochrome 10-bit AVIF image of the three
         planes Y, Cb, Cr one below the other (``w x 3h``), in one or more
         bands of rows, each an AVIF file (``tpsv.codec.detail.band_rows``),
-        kept so that writing the model again gives the same bytes.
+        kept so that writing the model again gives the same bytes (one
+        ``bytes`` object is taken as the image in one piece).
     texels : ndarray, shape (h, w, 3), uint16
         Decoded texture, (Y, Cb, Cr) of the residual, each
         ``(texel - DETAIL_ZERO) / DETAIL_GAIN`` (:data:`DETAIL_YCC`).

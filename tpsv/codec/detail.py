@@ -266,19 +266,29 @@ def quantize(detail: Detail | None, n_regions: int) -> Detail | None:
     if not 1 <= int(detail.quality) <= 100:
         raise ValueError(f"detail quality {detail.quality} not in 1..100")
     frame = quantize_frame(detail.frame, n_regions).reshape(n_regions, 3, 2) / FRAME_SCALE
-    return Detail(payload=tuple(bytes(b) for b in detail.payload), texels=t, frame=frame, mode=mode.astype(np.uint8),
-                  quality=int(detail.quality))
+    return Detail(payload=payload_bands(detail.payload), texels=t, frame=frame,
+                  mode=mode.astype(np.uint8), quality=int(detail.quality))
+
+
+def payload_bands(payload) -> tuple[bytes, ...]:
+    """A detail payload as stored: its AVIF files as a tuple (one ``bytes`` object is one file),
+    1..:data:`MAX_BANDS` of them (ValueError otherwise)."""
+    bands = (payload,) if isinstance(payload, (bytes, bytearray, memoryview)) else tuple(payload)
+    if not 1 <= len(bands) <= MAX_BANDS or not all(isinstance(b, (bytes, bytearray, memoryview)) for b in bands):
+        raise ValueError(f"detail payload must be 1..{MAX_BANDS} AVIF files (bytes)")
+    return tuple(bytes(b) for b in bands)
 
 
 def pack_section(detail: Detail, n_regions: int) -> bytes:
     """The raw detail section of ``detail`` (already :func:`quantize`-d or not)."""
     h, w = detail.texels.shape[:2]
+    bands = payload_bands(detail.payload)
     return _packb({
         "codec": CODEC, "width": int(w), "height": int(h), "quality": int(detail.quality),
         "frame": quantize_frame(detail.frame, n_regions).astype("<i4").tobytes(),
         "mode": np.asarray(detail.mode, np.uint8).tobytes(),
         # one band is stored as before version 8 (a file re-encoded keeps its bytes)
-        "image": bytes(detail.payload[0]) if len(detail.payload) == 1 else [bytes(b) for b in detail.payload],
+        "image": bands[0] if len(bands) == 1 else list(bands),
     })
 
 
@@ -297,14 +307,15 @@ def unpack_section(raw: bytes, h: layout.Header) -> Detail:
     if mode.max(initial=0) > DETAIL_LUMA:
         raise TpsvFormatError(f"section detail: region mode {int(mode.max())} not in 0..{DETAIL_LUMA}")
     image = obj["image"]
-    if isinstance(image, list) and h.version >= layout.BANDED_DETAIL_SINCE:
+    banded = h.version >= layout.BANDED_DETAIL_SINCE
+    if isinstance(image, list) and banded:
         if not 2 <= len(image) <= MAX_BANDS or not all(isinstance(b, bytes) for b in image):
             raise TpsvFormatError(f"section detail: image is not an array of 2..{MAX_BANDS} bins")
         image = tuple(image)
     elif isinstance(image, bytes):
         image = (image,)
     else:
-        raise TpsvFormatError("section detail: image is not a bin" + (" or an array of bins" if h.version >= layout.BANDED_DETAIL_SINCE else ""))
+        raise TpsvFormatError("section detail: image is not a bin" + (" or an array of bins" if banded else ""))
     texels = decode_texels(image, w, hh)
     return Detail(payload=image, texels=texels, frame=frame.reshape(R, 3, 2) / FRAME_SCALE, mode=mode,
                   quality=quality)
