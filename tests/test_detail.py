@@ -308,37 +308,40 @@ def test_hostile_detail_sections_are_refused(textured):
     _reject(data[:layout.parse_header(data).detail_offset + 3], "truncated")
 
 
-def test_the_image_is_cut_into_bands_by_its_size_alone():
-    """One band per 2^18 texels, heights a multiple of 64 rows, the last band never empty; the
-    bands tile the image exactly (docs/FORMAT.md, detail)."""
-    assert detail_codec.band_count(512, 512) == 3  # 1536 x 512: the three planes
-    assert detail_codec.band_count(451, 300) == 2
-    assert detail_codec.band_count(64, 42) == 1
-    assert detail_codec.band_count(1, 1) == 1
-    assert detail_codec.band_count(4000, 3000) == 16  # 9000 rows in bands of 576
-    for w, h in [(1, 1), (3, 700), (451, 300), (512, 512), (4000, 3000), (7000, 5000), (65535, 1024)]:
-        rows, cols = detail_codec.image_shape(w, h)
-        n = detail_codec.band_count(w, h)
-        spans = detail_codec.band_rows(rows, n)
-        assert 1 <= n <= detail_codec.MOST_BANDS and spans[0][0] == 0 and spans[-1][1] == rows
-        assert all(a < b and b == c for (a, b), (c, _) in zip(spans, spans[1:] + [(rows, None)]))
+def test_the_texture_is_cut_into_bands_by_its_size_alone():
+    """Small textures in one piece; larger ones plane by plane, a band per 2^22 texels of a plane
+    (at most 5), heights a multiple of 64 rows, the last band never empty; the bands tile each
+    plane exactly (docs/FORMAT.md, detail)."""
+    assert detail_codec.plane_bands(64, 42) == 0
+    assert detail_codec.plane_bands(362, 362) == 0  # 131044 texels a plane
+    assert detail_codec.plane_bands(451, 300) == 1  # the samples: their three planes
+    assert detail_codec.plane_bands(512, 512) == 1
+    assert detail_codec.plane_bands(2048, 2048) == 1
+    assert detail_codec.plane_bands(4000, 3000) == 3  # 3000 rows in bands of 1024
+    assert detail_codec.plane_bands(7300, 5475) == 5  # 40 Mpx
+    assert detail_codec.plane_bands(65535, 100) == 2  # 6.5M texels a plane, 100 rows: bands of 64 and 36
+    assert detail_codec.plane_bands(65535, 64) == 1  # 64 rows: one band
+    for w, h in [(362, 363), (3, 70000), (451, 300), (4000, 3000), (7300, 5475), (65535, 1024), (1024, 65535)]:
+        n = detail_codec.plane_bands(w, h)
+        spans = detail_codec.band_rows(h, n)
+        assert 1 <= n <= detail_codec.MOST_PLANE_BANDS and spans[0][0] == 0 and spans[-1][1] == h
+        assert all(a < b and b == c for (a, b), (c, _) in zip(spans, spans[1:] + [(h, None)]))
         assert all((b - a) % detail_codec.BAND_ALIGN == 0 for a, b in spans[:-1])
     with pytest.raises(TpsvFormatError, match="cannot be cut into 3 bands"):
         detail_codec.band_rows(128, 3)  # bands of 64 rows: the third would be empty
-    with pytest.raises(TpsvFormatError, match="1..1024"):
-        detail_codec.band_rows(10**6, 1025)
+    with pytest.raises(TpsvFormatError, match="1..341"):
+        detail_codec.band_rows(10**6, 342)
 
 
 @pytest.fixture()
 def banded(textured, monkeypatch):
-    """The textured file with its texture coded in two bands (smaller bands asked for)."""
+    """The textured file with its texture coded plane by plane (its size made to count as large)."""
     from tpsv.encode.detail import code_texels
 
     model = codec.decode(textured.data)
-    rows, cols = detail_codec.image_shape(model.width, model.height)
-    monkeypatch.setattr(detail_codec, "BAND_TEXELS", rows * cols // 2 + 1)
+    monkeypatch.setattr(detail_codec, "ONE_PIECE_TEXELS", 1)
     payload, texels = code_texels(model.detail.texels, 75)
-    assert len(payload) == 2
+    assert len(payload) == 3
     model.detail = dataclasses.replace(model.detail, payload=payload, texels=texels)
     return model, codec.encode(model)
 
@@ -348,11 +351,10 @@ def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
     back = codec.decode(data)
     assert back.detail == model.detail and codec.encode(back) == data
     assert isinstance(_detail_map(data)["image"], list)
-    # each band is an AVIF file of its rows; together the same texture as in one piece, nearly
+    # each plane is an AVIF file of its own; together the same texture as in one piece, nearly
     one = codec.decode(textured.data).detail.texels
     assert np.abs(back.detail.texels.astype(int) - one).mean() < 4
-    rows, cols = detail_codec.image_shape(model.width, model.height)
-    assert [detail_codec.image_sizes(b)[0] for b in back.detail.payload] == [(cols, 128), (cols, rows - 128)]
+    assert [detail_codec.image_sizes(b)[0] for b in back.detail.payload] == [(model.width, model.height)] * 3
     # a version-7 decoder's rule: the image is one bin there
     import zlib
 
@@ -362,30 +364,48 @@ def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
     _reject(bytes(v7), "image is not a bin$")
 
 
+def test_a_plane_in_several_bands_round_trips(monkeypatch):
+    """A plane of 70 rows in two bands (64 and 6 rows): 6 files, plane by plane."""
+    rng = np.random.default_rng(5)
+    texels = np.clip(512 + np.cumsum(rng.normal(0, 3, (70, 40, 3)), axis=1), 0, 1023).astype(np.uint16)
+    monkeypatch.setattr(detail_codec, "ONE_PIECE_TEXELS", 1)
+    monkeypatch.setattr(detail_codec, "BAND_TEXELS", 40 * 35)
+    assert detail_codec.plane_bands(40, 70) == 2
+    files = detail_codec.encode_texels(texels, 100)
+    assert [detail_codec.image_sizes(f)[0] for f in files] == [(40, 64), (40, 6)] * 3
+    back = detail_codec.decode_texels(files, 40, 70)
+    assert back.shape == texels.shape and np.abs(back.astype(int) - texels).max() <= 4
+    # the planes' order counts: Cb's bands where Y's were give another texture, of the same size
+    swapped = detail_codec.decode_texels(files[2:4] + files[:2] + files[4:], 40, 70)
+    assert np.array_equal(swapped[..., 0], back[..., 1]) and np.array_equal(swapped[..., 1], back[..., 0])
+
+
 def test_a_payload_of_one_bytes_object_is_the_image_in_one_piece(textured):
     model = codec.decode(textured.data)
     (one,) = model.detail.payload
     model.detail = dataclasses.replace(model.detail, payload=one)
     assert codec.encode(model) == textured.data
-    model.detail = dataclasses.replace(model.detail, payload=())
-    with pytest.raises(ValueError, match="1..1024 AVIF files"):
-        codec.encode(model)
+    for bad in [(), (one, one)]:
+        model.detail = dataclasses.replace(model.detail, payload=bad)
+        with pytest.raises(ValueError, match="1 AVIF file, or 3 n"):
+            codec.encode(model)
 
 
 def test_hostile_bands_are_refused(banded):
     _, data = banded
     base = _detail_map(data)
-    first, second = base["image"]
+    y, cb, cr = base["image"]
+    stacked = _detail_map(codec.encode(codec.decode(data)))["image"]
     cases = [
-        ([first], "array of 2..1024 bins"),
-        ([first, "text"], "array of 2..1024 bins"),
-        ([first] * 1025, "exceeds the bound"),  # refused from the sizes alone
-        ([b"x"] * 1025, "array of 2..1024 bins"),
-        ([first, second, second, second], "cannot be cut into 4 bands"),
-        ([second, first], "declares|decodes to"),
-        ([first, first], "declares|decodes to"),
-        ([first, second[:len(second) // 2]], "cannot be decoded|bad size"),
-        ([first, _bigger_ispe(second, 60000, 60000)], "declares 60000x60000"),
+        ([y], "array of 3..1023 bins"),
+        ([y, cb, "text"], "array of 3..1023 bins"),
+        ([y, cb], "array of 3..1023 bins"),
+        ([y, cb, cr, y], "4 files, not 3 planes' bands"),
+        ([y] * 1026, "exceeds the bound"),  # refused from the sizes alone
+        ([b"x"] * 1026, "array of 3..1023 bins"),
+        ([y, cb, cr] * 2, "cannot be cut into 2 bands"),  # 43 rows: bands of 64
+        ([y, cb, cr[:len(cr) // 2]], "cannot be decoded|bad size"),
+        ([y, cb, _bigger_ispe(cr, 60000, 60000)], "declares 60000x60000"),
     ]
     for image, match in cases:
         _reject(_with_detail(data, {**base, "image": image}), match)

@@ -243,11 +243,12 @@ class Detail:
     Attributes
     ----------
     payload : tuple of bytes
-        The texture as stored: a monochrome 10-bit AVIF image of the three
-        planes Y, Cb, Cr one below the other (``w x 3h``), in one or more
-        bands of rows, each an AVIF file (``tpsv.codec.detail.band_rows``),
-        kept so that writing the model again gives the same bytes (one
-        ``bytes`` object is taken as the image in one piece).
+        The texture as stored, kept so that writing the model again gives
+        the same bytes: one monochrome 10-bit AVIF file of the three planes
+        Y, Cb, Cr one below the other (``w x 3h``), or the planes one by one,
+        each in bands of rows, an AVIF file a band
+        (``tpsv.codec.detail.plane_bands``; one ``bytes`` object is taken as
+        the single file).
     texels : ndarray, shape (h, w, 3), uint16
         Decoded texture, (Y, Cb, Cr) of the residual, each
         ``(texel - DETAIL_ZERO) / DETAIL_GAIN`` (:data:`DETAIL_YCC`).

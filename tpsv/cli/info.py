@@ -45,7 +45,7 @@ def summary(data: bytes) -> dict:
         # the texture detail layer: None for a pure vector image
         "detail": None if d is None else {
             "quality": d.quality, "width": int(d.texels.shape[1]), "height": int(d.texels.shape[0]),
-            "bytes": codec.section_sizes(data)["detail"], "bands": len(d.payload),
+            "bytes": codec.section_sizes(data)["detail"], "files": len(d.payload),
             "regions_full": int((d.mode == DETAIL_FULL).sum()), "regions_luma": int((d.mode == DETAIL_LUMA).sum()),
         },
         "params": {
@@ -75,6 +75,11 @@ def _map_summary(model) -> dict:
 def _pairs(items: dict) -> str:
     """``k=v, ...`` with every stored string escaped (no terminal control from a file)."""
     return ", ".join(f"{display(k)}={display(v) if isinstance(v, str) else v}" for k, v in items.items())
+
+
+def _files(n: int) -> str:
+    """How the texture is stored (docs/FORMAT.md, detail): in one file, or plane by plane in bands."""
+    return "" if n == 1 else f" plane by plane ({n} files, {n // 3} band{'s' if n > 3 else ''} a plane)"
 
 
 @main.command()
@@ -117,7 +122,7 @@ def info(path: str, as_json: bool) -> None:
     else:
         luma = f", {d['regions_luma']} luma only" if d["regions_luma"] else ""
         click.echo(f"  detail    {d['width']}x{d['height']} texels, AVIF at quality {d['quality']}"
-                   f"{' in ' + str(d['bands']) + ' bands' if d['bands'] > 1 else ''}, {d['bytes']} B; "
+                   f"{_files(d['files'])}, {d['bytes']} B; "
                    f"{d['regions_full']} regions full{luma}")
     click.echo("  sections  " + ", ".join(f"{k} {v} B" for k, v in s["sections"].items()))
     click.echo("  params    " + _pairs(params))

@@ -8,10 +8,11 @@ origin, d/dS, d/dT of each region's rest frame), ``mode`` (``R`` bytes) and
 below the other, ``width x 3 height``, or side by side when the texture is
 taller than wide; OpenCV's AVIF writer subsamples the chroma of colour images
 2:1, which capped the PSNR of red on black at 37 dB, while planes in one grey
-image keep every texel). Since version 8 that image may be cut into bands of
-whole rows, each an AVIF file of its own (``image`` an array of them): OpenCV
-codes one AVIF image on one thread, and the bands are coded (and decoded) on
-every host core at once (:func:`band_count`).
+image keep every texel). Since version 8 a texture may instead be coded plane
+by plane, each plane in bands of rows, each band an AVIF file of its own
+(``image`` an array of them): OpenCV codes one AVIF image on one thread, and
+the files are coded (and decoded) on every host core at once
+(:func:`plane_bands`).
 
 The AVIF image is decoded by OpenCV's libavif. Before it is, the image's own
 declared sizes (every ``ispe`` property of its ISO-BMFF boxes) must fit the
@@ -47,22 +48,29 @@ AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
 #: Textures larger than this (texels) are coded at the fast speed: at speed 5 a 12-megapixel
 #: texture would take about a minute of the encoder.
 CAREFUL_TEXELS = 1 << 20
-#: Texels of a band the encoder aims at, and the most bands it writes (:func:`band_count`).
-#: Cutting costs bytes (each band's AVIF headers, mostly repeated, which zstd takes back, and
-#: libaom's choices made per image): the samples' files moved by -0.03..+0.05 dB BD-PSNR in
-#: 2 or 3 bands, a 12-megapixel photo's texture took 1.9 % more bytes in 4 or 16 bands and
-#: 5.4 % in 71 (docs/DESIGN.md, "Detail layer").
-BAND_TEXELS = 1 << 18
-MOST_BANDS = 16
+#: Textures of fewer texels a plane than this are coded in one piece (the planes stacked in one
+#: image, as before version 8); larger ones plane by plane, each plane in bands of rows
+#: (:func:`plane_bands`), so that the host's cores code them at once. Every file costs its own
+#: AVIF headers (mostly the same bytes, which the section's zstd takes back) and libaom's choices
+#: made per image: 100-200 bytes, which a small file would feel.
+ONE_PIECE_TEXELS = 1 << 17
+#: Texels of a plane's band the encoder aims at, and the most bands a plane is cut into. The
+#: fewer the files, the fewer bytes: measured at quality 75 (bytes after zstd / texels' PSNR
+#: against one piece), the astronaut resized to 2048 px in its 3 planes -0.10 % / +0.03 dB, in
+#: 12 bands +1.38 % / -0.05 dB, in 16 strips of rows +1.76 % / -0.06 dB; the 12-megapixel photo
+#: in 6 bands +0.81 % / -0.02 dB, in 15 +2.08 % / -0.05 dB (docs/DESIGN.md, "Bands").
+BAND_TEXELS = 1 << 22
+MOST_PLANE_BANDS = 5
 #: Texels coded (or decoded) at once, across the bands in flight: a libaom encoder holds about
 #: 20 bytes a texel and 30-50 MB besides (one 12-megapixel texture in one piece 690 MB, a band
-#: of 2.3M texels 75 MB), so a host of many cores codes that texture's 16 bands 7 at a time
-#: (the photo's peak on a 16-core host: 1.83 GB in one piece, 2.75 GB all 16 at once, 1.98 GB so).
+#: of 2.3M texels 75 MB), so a host of many cores does not code every band of a large texture
+#: at once (the 12 MP photo's peak on a 16-core host: 1.83 GB in one piece, 2.75 GB with 16
+#: bands all at once, 1.98 GB with 7 at a time).
 TEXELS_AT_ONCE = 1 << 24
 #: Band heights are multiples of this (AV1's 64-px superblocks stay where one image has them).
 BAND_ALIGN = 64
-#: The most bands an image may be cut into (a 40-megapixel photo's texture takes about 460).
-MAX_BANDS = 1024
+#: The most files the image may be stored in (3 planes of 341 bands).
+MAX_BANDS = 1023
 #: AVIF quality at tpsv quality 100 (100 would be lossless: ~16 bpp).
 MAX_AVIF_QUALITY = 98
 DEPTH = 10
@@ -94,70 +102,75 @@ def avif_speed(width: int, height: int) -> int:
 
 
 def band_height(rows: int, n: int) -> int:
-    """Rows of each of ``n`` bands of an image of ``rows`` rows (the last takes what is left):
+    """Rows of each of ``n`` bands of a plane of ``rows`` rows (the last takes what is left):
     ``rows / n`` rounded up to a multiple of :data:`BAND_ALIGN`."""
     return BAND_ALIGN * -(-int(rows) // (BAND_ALIGN * int(n)))
 
 
 def band_rows(rows: int, n: int) -> list[tuple[int, int]]:
-    """``(first, end)`` rows of each of ``n`` bands of an image of ``rows`` rows.
+    """``(first, end)`` rows of each of ``n`` bands of a plane of ``rows`` rows.
 
     Raises
     ------
     TpsvFormatError
-        ``n`` bands of :func:`band_height` rows leave a band empty, or ``n`` is not in
-        ``1..MAX_BANDS``.
+        ``n`` bands of :func:`band_height` rows leave a band empty, or ``3 n`` files would be
+        more than :data:`MAX_BANDS`.
     """
-    if not 1 <= n <= MAX_BANDS:
-        raise TpsvFormatError(f"section detail: image in {n} bands, expected 1..{MAX_BANDS}")
+    if not 1 <= n <= MAX_BANDS // 3:
+        raise TpsvFormatError(f"section detail: planes in {n} bands, expected 1..{MAX_BANDS // 3}")
     step = band_height(rows, n)
     if (n - 1) * step >= rows:
         raise TpsvFormatError(f"section detail: {rows} rows cannot be cut into {n} bands")
     return [(k * step, min(rows, (k + 1) * step)) for k in range(n)]
 
 
-def band_count(width: int, height: int) -> int:
-    """How many bands the AVIF image of a ``width x height`` texture is coded in: one per
-    :data:`BAND_TEXELS` texels of the image (1 up to 2^18), at most :data:`MOST_BANDS`, fewer
-    where the rows do not make that many bands of :func:`band_height` rows. It depends on the
-    size alone, so a file's bytes do not depend on the machine that wrote it."""
-    rows, cols = image_shape(width, height)
-    n = min(MOST_BANDS, max(1, -(-rows * cols // BAND_TEXELS)))
-    while n > 1 and (n - 1) * band_height(rows, n) >= rows:
+def plane_bands(width: int, height: int) -> int:
+    """How the texture of a ``width x height`` picture is coded: 0 in one piece (the planes stacked,
+    a plane of fewer than :data:`ONE_PIECE_TEXELS` texels), else plane by plane, each plane in
+    this many bands of rows: one per :data:`BAND_TEXELS` texels, at most
+    :data:`MOST_PLANE_BANDS`, fewer where the rows do not make that many bands of
+    :func:`band_height` rows. It depends on the size alone, so a file's bytes do not depend on
+    the machine that wrote it."""
+    texels = int(width) * int(height)
+    if texels < ONE_PIECE_TEXELS:
+        return 0
+    n = min(MOST_PLANE_BANDS, max(1, -(-texels // BAND_TEXELS)))
+    while n > 1 and (n - 1) * band_height(height, n) >= int(height):
         n -= 1
     return n
 
 
 def _pool(band_texels: int):
-    """The host threads that code or decode bands of ``band_texels`` texels: one a core, no
+    """The host threads that code or decode files of ``band_texels`` texels: one a core, no
     more than :data:`TEXELS_AT_ONCE` texels in flight."""
     from ..threads import host_cores, pool
 
     return pool("avif", max(1, min(host_cores(), TEXELS_AT_ONCE // max(1, int(band_texels)))))
 
 
+def _avif(image: np.ndarray, params: list) -> bytes:
+    try:
+        ok, buf = cv2.imencode(".avif", np.ascontiguousarray(image), params)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise TpsvError("this OpenCV cannot write AVIF images (the detail layer needs opencv>=5.0 with libavif)")
+    return buf.tobytes()
+
+
 def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
-    """The AVIF files of ``texels`` (h, w, 3) uint16 in 0..1023 (planes stacked, in
-    :func:`band_count` bands of rows, coded at once on the host's cores) at tpsv ``quality``
-    (the encoder's speed by the texture's size, :func:`avif_speed`)."""
+    """The AVIF files of ``texels`` (h, w, 3) uint16 in 0..1023 at tpsv ``quality`` (the
+    encoder's speed by the texture's size, :func:`avif_speed`): one file of the three planes
+    stacked, or (:func:`plane_bands`) each plane's bands of rows, plane by plane, coded at once on
+    the host's cores."""
     h, w = texels.shape[:2]
     params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, avif_speed(w, h),
               cv2.IMWRITE_AVIF_DEPTH, DEPTH]
-    planes = np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h))
-
-    def code(rows):
-        try:
-            ok, buf = cv2.imencode(".avif", np.ascontiguousarray(planes[rows[0]:rows[1]]), params)
-        except cv2.error:
-            ok = False
-        if not ok:
-            raise TpsvError("this OpenCV cannot write AVIF images (the detail layer needs opencv>=5.0 with libavif)")
-        return buf.tobytes()
-
-    bands = band_rows(planes.shape[0], band_count(w, h))
-    if len(bands) == 1:
-        return (code(bands[0]),)
-    return tuple(_pool(band_height(planes.shape[0], len(bands)) * planes.shape[1]).map(code, bands))
+    n = plane_bands(w, h)
+    if n == 0:
+        return (_avif(np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h)), params),)
+    pieces = [(k, a, b) for k in range(3) for a, b in band_rows(h, n)]
+    return tuple(_pool(band_height(h, n) * w).map(lambda p: _avif(texels[p[1]:p[2], :, p[0]], params), pieces))
 
 
 def _boxes(data: bytes, start: int, end: int, depth: int = 0):
@@ -204,40 +217,60 @@ def image_sizes(data: bytes) -> list[tuple[int, int]]:
     return sizes
 
 
-def decode_texels(bands, width: int, height: int) -> np.ndarray:
-    """The texels (height, width, 3) uint16 of AVIF files (planes stacked, cut into
-    ``len(bands)`` bands of rows by :func:`band_rows`), checked before and after decoding."""
-    rows, cols = image_shape(width, height)
-    spans = band_rows(rows, len(bands))
-    for data, (a, b) in zip(bands, spans):
-        for w, h in image_sizes(data):
-            if w > cols or h > b - a:
-                raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture's image"
-                                      f"{' band' if len(bands) > 1 else ''} is {cols}x{b - a}")
-    img = np.empty((rows, cols), np.uint16)
+def _decoded(data: bytes, shape: tuple[int, int]) -> tuple[np.ndarray | None, str | None]:
+    """An AVIF file decoded, checked to be ``shape`` uint16 in 0..1023: ``(image, None)`` or ``(None, problem)``."""
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
+    if img is None:
+        return None, "the AVIF image cannot be decoded"
+    if img.dtype != np.uint16 or img.shape != shape:
+        return None, f"image decodes to {img.shape} {img.dtype}, expected {shape} uint16"
+    if int(img.max(initial=0)) > 1023:
+        return None, "image is not 10-bit"
+    return img, None
 
-    def decode(k):
-        a, b = spans[k]
-        try:
-            band = cv2.imdecode(np.frombuffer(bands[k], np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
-            band = None
-        if band is None:
-            return "the AVIF image cannot be decoded"
-        if band.dtype != np.uint16 or band.shape != (b - a, cols):
-            return f"image decodes to {band.shape} {band.dtype}, expected ({b - a}, {cols}) uint16"
-        if int(band.max(initial=0)) > 1023:
-            return "image is not 10-bit"
-        img[a:b] = band
-        return None
 
-    with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
-        problems = [decode(0)] if len(bands) == 1 else \
-            list(_pool((spans[0][1] - spans[0][0]) * cols).map(decode, range(len(bands))))
+def _check_sizes(data: bytes, cols: int, rows: int, what: str) -> None:
+    for w, h in image_sizes(data):
+        if w > cols or h > rows:
+            raise TpsvFormatError(f"section detail: image declares {w}x{h}, the texture's {what} is {cols}x{rows}")
+
+
+def decode_texels(files, width: int, height: int) -> np.ndarray:
+    """The texels (height, width, 3) uint16 of a detail image: one AVIF file of the planes stacked,
+    or ``3 n`` files, each plane's ``n`` bands of rows (:func:`band_rows`) plane by plane; every
+    file's declared sizes checked before it is decoded, its pixels after."""
+    if len(files) == 1:
+        rows, cols = image_shape(width, height)
+        _check_sizes(files[0], cols, rows, "image")
+        with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
+            img, problem = _decoded(files[0], (rows, cols))
+        if problem:
+            raise TpsvFormatError(f"section detail: {problem}")
+        return np.ascontiguousarray(np.stack(np.split(img, 3, axis=plane_axis(width, height)), axis=-1))
+    if len(files) % 3:
+        raise TpsvFormatError(f"section detail: image in {len(files)} files, not 3 planes' bands")
+    spans = band_rows(height, len(files) // 3)
+    pieces = [(k, a, b) for k in range(3) for a, b in spans]
+    for data, (_, a, b) in zip(files, pieces):
+        _check_sizes(data, width, b - a, "band")
+    texels = np.empty((height, width, 3), np.uint16)
+
+    def decode(i):
+        k, a, b = pieces[i]
+        img, problem = _decoded(files[i], (b - a, width))
+        if img is not None:
+            texels[a:b, :, k] = img
+        return problem
+
+    with quiet_stderr():
+        problems = list(_pool((spans[0][1] - spans[0][0]) * width).map(decode, range(len(files))))
     for problem in problems:
         if problem is not None:
             raise TpsvFormatError(f"section detail: {problem}")
-    return np.ascontiguousarray(np.stack(np.split(img, 3, axis=plane_axis(width, height)), axis=-1))
+    return texels
 
 
 def quantize_frame(frame: np.ndarray, n_regions: int) -> np.ndarray:
@@ -274,8 +307,9 @@ def payload_bands(payload) -> tuple[bytes, ...]:
     """A detail payload as stored: its AVIF files as a tuple (one ``bytes`` object is one file),
     1..:data:`MAX_BANDS` of them (ValueError otherwise)."""
     bands = (payload,) if isinstance(payload, (bytes, bytearray, memoryview)) else tuple(payload)
-    if not 1 <= len(bands) <= MAX_BANDS or not all(isinstance(b, (bytes, bytearray, memoryview)) for b in bands):
-        raise ValueError(f"detail payload must be 1..{MAX_BANDS} AVIF files (bytes)")
+    if not (len(bands) == 1 or (3 <= len(bands) <= MAX_BANDS and len(bands) % 3 == 0)) \
+            or not all(isinstance(b, (bytes, bytearray, memoryview)) for b in bands):
+        raise ValueError(f"detail payload must be 1 AVIF file, or 3 n (at most {MAX_BANDS}), as bytes")
     return tuple(bytes(b) for b in bands)
 
 
@@ -309,8 +343,8 @@ def unpack_section(raw: bytes, h: layout.Header) -> Detail:
     image = obj["image"]
     banded = h.version >= layout.BANDED_DETAIL_SINCE
     if isinstance(image, list) and banded:
-        if not 2 <= len(image) <= MAX_BANDS or not all(isinstance(b, bytes) for b in image):
-            raise TpsvFormatError(f"section detail: image is not an array of 2..{MAX_BANDS} bins")
+        if not 3 <= len(image) <= MAX_BANDS or not all(isinstance(b, bytes) for b in image):
+            raise TpsvFormatError(f"section detail: image is not an array of 3..{MAX_BANDS} bins")
         image = tuple(image)
     elif isinstance(image, bytes):
         image = (image,)
