@@ -10,9 +10,9 @@ taller than wide; OpenCV's AVIF writer subsamples the chroma of colour images
 2:1, which capped the PSNR of red on black at 37 dB, while planes in one grey
 image keep every texel). Since version 8 a texture may instead be coded plane
 by plane, each plane in bands of rows, each band an AVIF file of its own
-(``image`` an array of them): OpenCV codes one AVIF image on one thread, and
-the files are coded (and decoded) on every host core at once
-(:func:`plane_bands`).
+(``image`` an array of them; tpsv writes one band a plane): OpenCV codes one
+AVIF image on one thread, and the files are coded (and decoded) on the host's
+cores at once (:func:`plane_bands`).
 
 The AVIF image is decoded by OpenCV's libavif. Before it is, the image's own
 declared sizes (every ``ispe`` property of its ISO-BMFF boxes) must fit the
@@ -49,24 +49,14 @@ AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
 #: texture would take about a minute of the encoder.
 CAREFUL_TEXELS = 1 << 20
 #: Textures of fewer texels a plane than this are coded in one piece (the planes stacked in one
-#: image, as before version 8); larger ones plane by plane, each plane in bands of rows
-#: (:func:`plane_bands`), so that the host's cores code them at once. Every file costs its own
-#: AVIF headers (mostly the same bytes, which the section's zstd takes back) and libaom's choices
-#: made per image: 100-200 bytes, which a small file would feel.
+#: image, as before version 8); larger ones plane by plane, a file a plane, so that the host's
+#: cores code them at once (:func:`plane_bands`). Every file costs its own AVIF headers (mostly
+#: the same bytes, which the section's zstd takes back) and libaom's choices made per image:
+#: 100-200 bytes, which a small file would feel. The format also lets a plane be cut into bands
+#: of rows; tpsv does not cut them: bands coded apart meet in a faint seam (a row where each
+#: side keeps its own coding error, a coherent step of about one 8-bit level across the width,
+#: seen in flat parts magnified), and more files cost more bytes (docs/DESIGN.md, "Planes and bands").
 ONE_PIECE_TEXELS = 1 << 17
-#: Texels of a plane's band the encoder aims at, and the most bands a plane is cut into. The
-#: fewer the files, the fewer bytes: measured at quality 75 (bytes after zstd / texels' PSNR
-#: against one piece), the astronaut resized to 2048 px in its 3 planes -0.10 % / +0.03 dB, in
-#: 12 bands +1.38 % / -0.05 dB, in 16 strips of rows +1.76 % / -0.06 dB; the 12-megapixel photo
-#: in 6 bands +0.81 % / -0.02 dB, in 15 +2.08 % / -0.05 dB (docs/DESIGN.md, "Bands").
-BAND_TEXELS = 1 << 22
-MOST_PLANE_BANDS = 5
-#: Texels coded (or decoded) at once, across the bands in flight: a libaom encoder holds about
-#: 20 bytes a texel and 30-50 MB besides (one 12-megapixel texture in one piece 690 MB, a band
-#: of 2.3M texels 75 MB), so a host of many cores does not code every band of a large texture
-#: at once (the 12 MP photo's peak on a 16-core host: 1.83 GB in one piece, 2.75 GB with 16
-#: bands all at once, 1.98 GB with 7 at a time).
-TEXELS_AT_ONCE = 1 << 24
 #: Band heights are multiples of this (AV1's 64-px superblocks stay where one image has them).
 BAND_ALIGN = 64
 #: The most files the image may be stored in (3 planes of 341 bands).
@@ -126,26 +116,19 @@ def band_rows(rows: int, n: int) -> list[tuple[int, int]]:
 
 def plane_bands(width: int, height: int) -> int:
     """How the texture of a ``width x height`` picture is coded: 0 in one piece (the planes stacked,
-    a plane of fewer than :data:`ONE_PIECE_TEXELS` texels), else plane by plane, each plane in
-    this many bands of rows: one per :data:`BAND_TEXELS` texels, at most
-    :data:`MOST_PLANE_BANDS`, fewer where the rows do not make that many bands of
-    :func:`band_height` rows. It depends on the size alone, so a file's bytes do not depend on
+    a plane of fewer than :data:`ONE_PIECE_TEXELS` texels), else 1, plane by plane, each plane
+    one file (in one band). It depends on the size alone, so a file's bytes do not depend on
     the machine that wrote it."""
-    texels = int(width) * int(height)
-    if texels < ONE_PIECE_TEXELS:
-        return 0
-    n = min(MOST_PLANE_BANDS, max(1, -(-texels // BAND_TEXELS)))
-    while n > 1 and (n - 1) * band_height(height, n) >= int(height):
-        n -= 1
-    return n
+    return 0 if int(width) * int(height) < ONE_PIECE_TEXELS else 1
 
 
-def _pool(band_texels: int):
-    """The host threads that code or decode files of ``band_texels`` texels: one a core, no
-    more than :data:`TEXELS_AT_ONCE` texels in flight."""
+def _pool(files: int):
+    """The host threads that code or decode ``files`` AVIF files at once: one a core. Three planes
+    at once hold about what the stacked image in one piece did (libaom's encoder holds about 20
+    bytes a texel)."""
     from ..threads import host_cores, pool
 
-    return pool("avif", max(1, min(host_cores(), TEXELS_AT_ONCE // max(1, int(band_texels)))))
+    return pool("avif", max(1, min(host_cores(), int(files))))
 
 
 def _avif(image: np.ndarray, params: list) -> bytes:
@@ -161,8 +144,8 @@ def _avif(image: np.ndarray, params: list) -> bytes:
 def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
     """The AVIF files of ``texels`` (h, w, 3) uint16 in 0..1023 at tpsv ``quality`` (the
     encoder's speed by the texture's size, :func:`avif_speed`): one file of the three planes
-    stacked, or (:func:`plane_bands`) each plane's bands of rows, plane by plane, coded at once on
-    the host's cores."""
+    stacked, or (:func:`plane_bands`) each plane's bands of rows, plane by plane, coded at once
+    on the host's cores."""
     h, w = texels.shape[:2]
     params = [cv2.IMWRITE_AVIF_QUALITY, avif_quality(quality), cv2.IMWRITE_AVIF_SPEED, avif_speed(w, h),
               cv2.IMWRITE_AVIF_DEPTH, DEPTH]
@@ -170,7 +153,7 @@ def encode_texels(texels: np.ndarray, quality: int) -> tuple[bytes, ...]:
     if n == 0:
         return (_avif(np.concatenate([texels[..., k] for k in range(3)], axis=plane_axis(w, h)), params),)
     pieces = [(k, a, b) for k in range(3) for a, b in band_rows(h, n)]
-    return tuple(_pool(band_height(h, n) * w).map(lambda p: _avif(texels[p[1]:p[2], :, p[0]], params), pieces))
+    return tuple(_pool(len(pieces)).map(lambda p: _avif(texels[p[1]:p[2], :, p[0]], params), pieces))
 
 
 def _boxes(data: bytes, start: int, end: int, depth: int = 0):
@@ -266,7 +249,7 @@ def decode_texels(files, width: int, height: int) -> np.ndarray:
         return problem
 
     with quiet_stderr():
-        problems = list(_pool((spans[0][1] - spans[0][0]) * width).map(decode, range(len(files))))
+        problems = list(_pool(len(files)).map(decode, range(len(files))))
     for problem in problems:
         if problem is not None:
             raise TpsvFormatError(f"section detail: {problem}")
