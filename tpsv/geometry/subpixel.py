@@ -303,7 +303,7 @@ def _read(comp, border, rgb, ys, xs, own, across):
     # spread goes from a quarter to a half of the contrast
     contrast = np.sqrt(dd)
     texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
-    return a, normal, np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture
+    return a, normal, np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture, sd_a + sd_b
 
 
 class BorderReading:
@@ -330,6 +330,11 @@ class BorderReading:
     near_trust : ndarray (H, W) float64
         The largest ``trust`` in each pixel's 3 x 3 neighbourhood (what an
         outline point between pixels goes by).
+    near_clean : ndarray (H, W) bool
+        Whether every border pixel in the 3 x 3 neighbourhood (one at
+        least) reads a border between two flat colours: trusted, both sides'
+        spread at most :data:`CLEAN_SPREAD` (a drawing's border, whose
+        contour needs little smoothing, :func:`_smooth_run`).
     """
 
     def __init__(self, comp: np.ndarray, rgb: np.ndarray):
@@ -346,6 +351,7 @@ class BorderReading:
         self.level = np.ones((H, W))
         self.trust = np.zeros((H, W))
         self.near_trust = self.trust
+        self.near_clean = np.zeros((H, W), bool)
         self._second = None
         ys, xs = np.nonzero(border)
         if ys.size == 0:
@@ -362,12 +368,17 @@ class BorderReading:
         # the second most frequent one too, so that its field does not leave that border to the
         # smoothed mask (which put the borders of a one-pixel line 0.2 px into it)
         second = _most_frequent(np.where(v != best[:, None], v, -1))
-        a, normal, trust = _read(comp, border, rgb, ys, xs, own, best)
+        a, normal, trust, spread = _read(comp, border, rgb, ys, xs, own, best)
         self.alpha[ys, xs] = a
         self.level[ys, xs] = 0.5 + _coverage_distance(a, normal)
         self._extrapolate(ys, xs, a, normal, own, best)
         self.trust[ys, xs] = trust
         self.near_trust = ndimage.maximum_filter(self.trust, size=3)
+        # a border between two flat colours (a drawing's, not a photo's): every border pixel around
+        # trusted and both sides without spread
+        clean = np.zeros((H, W), bool)
+        clean[ys, xs] = (trust >= 1.0) & (spread <= CLEAN_SPREAD)
+        self.near_clean = ndimage.minimum_filter(clean | ~border, size=3) & ndimage.maximum_filter(clean, size=3)
         two = np.flatnonzero((second >= 0) & (a >= 1.0 - SATURATED))
         if two.size:
             self._read_second(comp, border, rgb, ys[two], xs[two], own[two], second[two])
@@ -376,7 +387,7 @@ class BorderReading:
         """The reading of border pixels ``(ys, xs)`` against a second region ``across``, kept sparse
         (sorted flat indices, region across, level, trust): few pixels have one."""
         W = comp.shape[1]
-        a, normal, trust = _read(comp, border, rgb, ys, xs, own, across)
+        a, normal, trust, _ = _read(comp, border, rgb, ys, xs, own, across)
         whole = a >= 1.0 - SATURATED
         ys, xs, across, a, normal, trust = (v[whole] for v in (ys, xs, across, a, normal, trust))
         flat = ys.astype(np.int64) * W + xs
@@ -607,6 +618,13 @@ def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int,
     fy = (p[:, 1] == 0.0) | (p[:, 1] == H)
     frame = fx | fy
     return np.where((fx & fy) | (frame & ~(np.roll(frame, 1) & np.roll(frame, -1))), 0.0, tol)
+
+
+def _clean_points(reading: BorderReading, p: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Which contour points lie on a border between flat colours (:attr:`BorderReading.near_clean`)."""
+    cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
+    cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
+    return reading.near_clean[cy, cx]
 
 
 def _point_keys(polys: list[np.ndarray]) -> list[np.ndarray]:
@@ -888,7 +906,8 @@ def _through_curve(segments: list, near: np.ndarray) -> np.ndarray | None:
     return c + xn * u + float(np.polyval(coef, xn)) * v
 
 
-def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[np.ndarray]:
+def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray],
+                       cleans: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """All contours simplified at once for drawing as curves, a border between two regions once for both.
 
     Two regions' contours along their common border pass through the same
@@ -916,7 +935,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
             if done[i][a]:
                 continue
             run = np.arange(a, b + 1)
-            pts, t = _smooth_run(p[run % n]), tol[run % n]
+            pts, t = _smooth_run(p[run % n], None if cleans is None else cleans[i][run % n]), tol[run % n]
             kept = run[curves.simplify_open(pts, t, np.array([0, len(pts) - 1]))]
             keep[i][kept % n] = True
             out[i][run % n] = pts
@@ -932,6 +951,15 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray]) -> list[
 #: Savitzky-Golay window (contour points) and degree smoothing a run's reading noise before it is
 #: simplified for a curve (a local cubic fit: a circle is not shrunk, as a Gaussian would).
 SMOOTH_WINDOW, SMOOTH_DEGREE = 9, 3
+#: Where a clean border (:attr:`BorderReading.near_clean`) turns by more than this (degrees) over the
+#: window, it is smoothed over 5 points, by more than half of it over 7: a cubic over 9 points of a
+#: small circle is not exact (the bench logo's ring hole, radius 5.5 px, read 0.08 px small where it
+#: runs along the pixel axes, square at 8x), and a flat-colour border has little noise to smooth.
+#: (Shortened on photos' borders too, their noise made them look curved: their borders lost 0.02-0.29
+#: dB magnified; docs/DESIGN.md.)
+SHORT_SMOOTH_TURN = 30.0
+#: Largest spread (sRGB) of both sides' colours together for a border to be clean: flat colours.
+CLEAN_SPREAD = 0.004
 
 
 def _savgol_weights(window: int, degree: int) -> np.ndarray:
@@ -947,10 +975,13 @@ def _savgol_weights(window: int, degree: int) -> np.ndarray:
 
 
 _SMOOTH_WEIGHTS = _savgol_weights(SMOOTH_WINDOW, SMOOTH_DEGREE)
+_SHORT_WEIGHTS = {k: _savgol_weights(k, SMOOTH_DEGREE) for k in (5, 7)}
 
 
-def _smooth_run(p: np.ndarray) -> np.ndarray:
-    """An open run of contour points smoothed along itself, its ends and corners kept where they are."""
+def _smooth_run(p: np.ndarray, clean: np.ndarray | None = None) -> np.ndarray:
+    """An open run of contour points smoothed along itself, its ends and corners kept where they are;
+    points where ``clean`` (a border between flat colours) and the run turns fast are smoothed over
+    fewer points (:data:`SHORT_SMOOTH_TURN`)."""
     n = len(p)
     if n < 5:
         return p
@@ -965,7 +996,26 @@ def _smooth_run(p: np.ndarray) -> np.ndarray:
         # reflected about the fixed ends (odd extension): the ends stay where they are
         ext = np.vstack([2 * seg[0] - seg[r:0:-1], seg, 2 * seg[-1] - seg[-2:-r - 2:-1]])
         sm = np.stack([np.convolve(ext[:, k], w, mode="valid") for k in range(2)], axis=1)
+        if clean is not None and clean[a + 1:b].any():
+            sm = _shorter(ext, sm, clean[a:b + 1], r)
         out[a + 1:b] = sm[1:-1]
+    return out
+
+
+def _shorter(ext: np.ndarray, sm: np.ndarray, clean: np.ndarray, r: int) -> np.ndarray:
+    """``sm`` (a run's points smoothed over 9 points, ``ext`` the run extended by ``r`` a side) with its
+    clean points where the smoothed run turns fast smoothed over 5 or 7 points instead."""
+    s9 = np.vstack([ext[:r], sm, ext[-r:]])
+    u, v = s9[2 * r:] - s9[r:-r], s9[r:-r] - s9[:-2 * r]
+    cos = (u * v).sum(axis=1) / np.maximum(np.hypot(u[:, 0], u[:, 1]) * np.hypot(v[:, 0], v[:, 1]), 1e-12)
+    turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    out = sm.copy()
+    for k, limit in ((7, SHORT_SMOOTH_TURN / 2), (5, SHORT_SMOOTH_TURN)):
+        h = k // 2
+        e = ext[r - h:len(ext) - (r - h)]
+        short = np.stack([np.convolve(e[:, c], _SHORT_WEIGHTS[k], mode="valid") for c in range(2)], axis=1)
+        use = clean & (turn > limit)
+        out[use] = short[use]
     return out
 
 
@@ -1024,7 +1074,7 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
             break
     flat, tols = _pin_crossings(flat, tols, comp)
     flat, tols = _sharpen_corners(flat, tols, W, H, tolerance)
-    simple = _simplify_together(flat, tols)
+    simple = _simplify_together(flat, tols, [_clean_points(reading, p, W, H) for p in flat])
     # where only the smoothed mask speaks, the border is known to half a pixel: a coarser grid there
     steps = [np.where(_tolerances(reading, q, tolerance, W, H) > 2 * tolerance, LOOSE_STEP, 1) for q in simple]
     simple = iter(_snap_to_grid(simple, W, H, steps))
