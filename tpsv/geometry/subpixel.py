@@ -40,8 +40,9 @@ back to its traced outline (below).
 Corners, which no straight border describes, are put back where the straight
 runs either side cross. The outlines are drawn as curves through their
 vertices (:mod:`tpsv.geometry.curves`), so each run between junctions is
-smoothed (a local cubic fit over :data:`SMOOTH_WINDOW` contour points, its
-corners kept) and simplified for its curve: it keeps the points whose curve
+smoothed (a local cubic fit over :data:`SMOOTH_WINDOW` contour points, fewer
+where a border between flat colours turns fast, its corners kept) and
+simplified for its curve: it keeps the points whose curve
 stays within :data:`TOLERANCE` px of the smoothed run where the colours are
 trusted, easing to :data:`LOOSE_TOLERANCE` px where only the smoothed mask
 speaks (it is no more precise than the label map); the vertices are then put
