@@ -1217,6 +1217,17 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
     junctions = {tuple(k) for k in uk[nk >= 3]}
     edits: dict[int, list[tuple[set, np.ndarray]]] = {}
     claimed: set = set()
+
+    def claim(i: int, zone: np.ndarray, twin: int, corner: np.ndarray) -> None:
+        # the zone's points go to the corner in both regions' contours, unless another edit or a
+        # junction has them
+        zkeys = {tuple(k) for k in keys[i][zone]}
+        if zkeys & claimed or zkeys & junctions:
+            return
+        claimed.update(zkeys)
+        for j in (i, twin):
+            edits.setdefault(j, []).append((zkeys, corner))
+
     for i, p in enumerate(polys):
         n = len(p)
         if n < 12:
@@ -1279,24 +1290,14 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
             twin = part[i][around[:-1], 0]
             if (twin < 0).any() or (twin != twin[0]).any() or (tols[i][around] > 1.5 * tolerance).any():
                 continue
-            zkeys = {tuple(k) for k in keys[i][zone]}
-            if zkeys & claimed or zkeys & junctions:
-                continue
-            claimed |= zkeys
-            for j in (i, int(twin[0])):
-                edits.setdefault(j, []).append((zkeys, corner))
+            claim(i, zone, int(twin[0]), corner)
     # the ends of bars one to four pixels wide: their corners have no straight run on the short side
     for i, p in enumerate(polys):
         for zone, corners in _caps(p, tols[i], tolerance):
             twin = part[i][zone, 0]  # the edges from the zone's points on: the cap and the runs' last steps
             if (twin < 0).any() or (twin != twin[0]).any():
                 continue
-            zkeys = {tuple(k) for k in keys[i][zone]}
-            if zkeys & claimed or zkeys & junctions:
-                continue
-            claimed |= zkeys
-            for j in (i, int(twin[0])):
-                edits.setdefault(j, []).append((zkeys, corners))
+            claim(i, zone, int(twin[0]), corners)
     polys, tols = list(polys), list(tols)
     for j, todo in edits.items():
         kj = [tuple(k) for k in keys[j]]
