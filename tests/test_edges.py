@@ -335,6 +335,37 @@ def test_a_region_pinched_in_two_by_its_colours_is_split_not_traced():
                                   [(slice(0, 40), slice(0, 40)), (slice(14, 26), slice(4, 20))]) is None
 
 
+def test_regions_are_the_same_on_any_number_of_host_threads(monkeypatch):
+    """The border pixels are read in chunks on the host's threads: the outlines and the index (of a
+    picture with a pinched region, split) are those of one thread."""
+    from tpsv import threads
+
+    # two dark squares joined by a bridge of the background's colour (pinched: split in two) and a red bar
+    size, density = 40, 8
+    yy, xx = (np.mgrid[:size * density, :size * density] + 0.5) / density
+    dark = ((xx > 4.3) & (xx < 16.3) | (xx > 23.7) & (xx < 35.7)) & (yy > 14.4) & (yy < 26.4)
+    red = (xx > 6.6) & (xx < 33.2) & (yy > 30.3) & (yy < 35.8)
+    fine = np.where(dark[..., None], np.float32(0.15), np.float32(0.8)) * np.ones(3, np.float32)
+    fine[red] = (0.7, 0.1, 0.1)
+    rgb = fine.reshape(size, density, size, density, 3).mean((1, 3))
+    rgb += np.random.default_rng(3).normal(0, 0.005, rgb.shape).astype(np.float32)
+    labels = np.zeros((size, size), np.int32)
+    labels[14:26, 4:16] = labels[14:26, 24:36] = 1
+    labels[20, 16:24] = 1
+    labels[30:36, 7:33] = 2
+    monkeypatch.setattr(subpixel, "SIDE_CHUNK", 16)  # many chunks
+    runs = []
+    for cores in (1, 4):
+        monkeypatch.setattr(threads, "host_cores", lambda cores=cores: cores)
+        runs.append(build_regions(labels, rgb))
+    (one, index1), (many, index4) = runs
+    assert len(one) == len(many) > 3  # the pinched region was split
+    assert np.array_equal(index1, index4)
+    for a, b in zip(one, many):
+        assert len(a.outline) == len(b.outline)
+        assert all(np.array_equal(p, q) for p, q in zip(a.outline, b.outline))
+
+
 def test_fitted_outlines_are_on_the_file_grid():
     """So quantisation leaves them unchanged and the encoder reuses its scale-1 maps."""
     from tpsv.codec.quant import OUTLINE_SCALE

@@ -18,6 +18,27 @@ def test_one_pool_per_purpose_and_size():
     assert list(a.map(lambda x: x * x, range(5))) == [0, 1, 4, 9, 16]
 
 
+def test_map_ordered_keeps_the_order(monkeypatch):
+    """Results come in the items' order, from the pool's threads when there are cores, else a loop."""
+    import threading
+    import time
+
+    monkeypatch.setattr(threads, "host_cores", lambda: 4)
+    names = set()
+
+    def work(i):
+        names.add(threading.current_thread().name)
+        time.sleep(0.005 * (8 - i))  # the first items finish last
+        return i * i
+
+    assert threads.map_ordered("test-ordered", work, range(8)) == [i * i for i in range(8)]
+    assert all(n.startswith("tpsv-test-ordered") for n in names)
+    monkeypatch.setattr(threads, "host_cores", lambda: 1)
+    names.clear()
+    assert threads.map_ordered("test-ordered", work, [3, 1]) == [9, 1]
+    assert names == {threading.current_thread().name}
+
+
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="fork only")
 def test_a_forked_child_gets_pools_of_its_own():
     parent = threads.pool("test", 2)

@@ -50,6 +50,21 @@ def host_cores() -> int:
     return max(1, n)
 
 
+def map_ordered(purpose: str, fn, items, limit: int = 8) -> list:
+    """``[fn(x) for x in items]``, the calls made on up to ``limit`` host threads of ``purpose``'s pool.
+
+    For independent pieces of numpy work (numpy releases the interpreter in its
+    heavy calls): each result is what one thread computes, in the order of
+    ``items``, so the values do not depend on the number of cores. ``fn``
+    must not submit to ``purpose``'s pool itself.
+    """
+    items = list(items)
+    workers = min(int(limit), host_cores(), len(items))
+    if workers > 1:
+        return list(pool(purpose, workers).map(fn, items))
+    return [fn(x) for x in items]
+
+
 # a forked child has the parent's pool objects but none of their threads: it makes its own
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=pool.cache_clear)

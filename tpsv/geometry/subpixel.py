@@ -56,14 +56,18 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from ..threads import map_ordered
 from . import curves, outline
 
 #: Side of the window (px) whose interior pixels give each side's colour.
 WINDOW = 5
 #: Ridge (px^2) on the slope of each side's colour plane: a side seen over less spread than this leans on its mean.
 SLOPE_RIDGE = 1.0
-#: Border pixels whose sides are read at once (bounds the memory of the reading).
-SIDE_CHUNK = 1 << 16
+#: Border pixels whose sides one thread reads at once (bounds the memory of the reading: about 0.6 KB a
+#: pixel, :data:`SIDE_THREADS` chunks at a time).
+SIDE_CHUNK = 1 << 14
+#: Most host threads reading border pixels at once.
+SIDE_THREADS = 8
 #: Gaussian (px) weighting the window's pixels for a border pixel's normal.
 NORMAL_SIGMA = 1.2
 #: Coverage this close to 0 or 1 reads as a pixel wholly on one side.
@@ -290,13 +294,17 @@ def _most_frequent(v: np.ndarray) -> np.ndarray:
 def _read(comp, border, rgb, ys, xs, own, across):
     """Border pixels ``(ys, xs)`` read against region ``across``: the share ``alpha`` of their own
     region in their colour, the border's normal and the reading's trust."""
-    # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile)
+    # the sides' colours, a bounded number of border pixels at a time (each holds ~0.6 KB meanwhile), the
+    # chunks on the host's threads (each pixel's reading is its own: the same values on any core count)
     n = len(ys)
     mu_a, mu_b, normal = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
     sd_a, sd_b = np.empty(n), np.empty(n)
-    for a0 in range(0, n, SIDE_CHUNK):
-        k = slice(a0, a0 + SIDE_CHUNK)
+    chunks = [slice(a0, a0 + SIDE_CHUNK) for a0 in range(0, n, SIDE_CHUNK)]
+
+    def read(k):
         mu_a[k], sd_a[k], mu_b[k], sd_b[k], normal[k] = _sides(comp, border, rgb, ys[k], xs[k], own[k], across[k])
+
+    map_ordered("sides", read, chunks, SIDE_THREADS)
     d = mu_a - mu_b
     dd = (d * d).sum(axis=1)
     a = np.clip(((rgb[ys, xs].astype(np.float64) - mu_b) * d).sum(axis=1) / np.maximum(dd, 1e-12), 0.0, 1.0)
