@@ -382,12 +382,12 @@ class BorderReading:
         self.level[ys, xs] = 0.5 + _coverage_distance(a, normal)
         self._extrapolate(ys, xs, a, normal, own, best)
         self.trust[ys, xs] = trust
-        self.near_trust = ndimage.maximum_filter(self.trust, size=3)
+        self.near_trust = _max3(self.trust)
         # a border between two flat colours (a drawing's, not a photo's): every border pixel around
         # trusted and both sides without spread
         clean = np.zeros((H, W), bool)
         clean[ys, xs] = (trust >= 1.0) & (spread <= CLEAN_SPREAD)
-        self.near_clean = ndimage.minimum_filter(clean | ~border, size=3) & ndimage.maximum_filter(clean, size=3)
+        self.near_clean = _min3(clean | ~border) & _max3(clean)
         two = np.flatnonzero((second >= 0) & (a >= 1.0 - SATURATED))
         if two.size:
             self._read_second(comp, border, rgb, ys[two], xs[two], own[two], second[two])
@@ -490,8 +490,36 @@ class BorderReading:
         del w, smooth
         # away from the border the mask itself (the smoothing reaches 2 px into flat parts)
         out = sub.astype(np.float64)
-        np.copyto(out, m, where=ndimage.binary_dilation(across >= 0, iterations=1))
+        np.copyto(out, m, where=_grow(across >= 0))
         return out
+
+
+def _max3(a: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.maximum_filter(a, size=3)`` (float64 or bool) by OpenCV's dilation: the same
+    values (a 3 x 3 window's reflected pixels are its own), several times faster on a photo."""
+    import cv2
+
+    if a.dtype == bool:
+        return cv2.dilate(np.ascontiguousarray(a).view(np.uint8), _SQUARE).view(bool)
+    return cv2.dilate(a, _SQUARE)
+
+
+def _min3(a: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.minimum_filter(a, size=3)`` of a bool array (as :func:`_max3`)."""
+    import cv2
+
+    return cv2.erode(np.ascontiguousarray(a).view(np.uint8), _SQUARE).view(bool)
+
+
+def _grow(mask: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_dilation(mask)`` (one step of the 4-neighbour cross) by OpenCV."""
+    import cv2
+
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), _CROSS).view(bool)
+
+
+_SQUARE = np.ones((3, 3), np.uint8)
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
 
 
 def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
