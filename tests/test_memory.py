@@ -229,6 +229,13 @@ def test_mse_and_texels_equal_whole_image():
     qa = np.round(np.clip(a.astype(np.float64), 0, 1) * 255.0) / 255.0
     qb = np.round(np.clip(b, 0, 1) * 255.0) / 255.0
     assert metrics.mse(a, b) == pytest.approx(float(np.mean((qa - qb) ** 2)), rel=1e-12)
+    # bands summed on the host's threads: exact, so the same on any number of them
+    from tpsv import threads
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(threads, "host_cores", lambda: 1)
+        one = metrics.mse(a, b)
+    assert metrics.mse(a, b) == one
     u = (rng.random((40, 30, 3)) * 255).astype(np.uint8)
     assert metrics.mse(u, u.astype(np.float32) / 255) == 0.0
     rendered = rng.random((400, 300, 3)).astype(np.float32)
