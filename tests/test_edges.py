@@ -366,6 +366,21 @@ def test_regions_are_the_same_on_any_number_of_host_threads(monkeypatch):
         assert all(np.array_equal(p, q) for p, q in zip(a.outline, b.outline))
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 5), (5, 1), (2, 2), (37, 53)])
+def test_opencv_filters_are_scipys(shape):
+    """The reading's 3 x 3 maximum and minimum filters and the fields' cross dilation (OpenCV) give
+    scipy.ndimage's values, at the image's edges too."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(sum(shape))
+    mask = rng.random(shape) > 0.7
+    values = np.where(rng.random(shape) > 0.5, rng.random(shape), 0.0)
+    assert np.array_equal(subpixel._grow(mask), ndimage.binary_dilation(mask, iterations=1))
+    assert np.array_equal(subpixel._max3(values), ndimage.maximum_filter(values, size=3))
+    assert np.array_equal(subpixel._max3(mask), ndimage.maximum_filter(mask, size=3))
+    assert np.array_equal(subpixel._min3(mask), ndimage.minimum_filter(mask, size=3))
+
+
 def test_fitted_outlines_are_on_the_file_grid():
     """So quantisation leaves them unchanged and the encoder reuses its scale-1 maps."""
     from tpsv.codec.quant import OUTLINE_SCALE
