@@ -13,7 +13,7 @@ from typing import Iterator
 import numpy as np
 
 from ..color import srgb_to_lab
-from ..threads import host_cores, pool
+from ..threads import map_ordered
 
 #: Pixels per band (whole rows; at least one row).
 BAND_PIXELS = 1 << 16
@@ -66,15 +66,11 @@ def lab_image(rgb: np.ndarray, clip: bool = False) -> np.ndarray:
     return out
 
 
-def map_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> Iterator:
+def map_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> list:
     """What ``fn((a, b))`` returns for every band of :func:`row_bands`, in band order, the calls
-    made on a few host threads (numpy releases the GIL in its heavy calls; each band's values
-    are what one thread computes)."""
-    bands = list(row_bands(height, width, pixels))
-    workers = min(BAND_THREADS, host_cores(), len(bands))
-    if workers > 1:
-        return pool("bands", workers).map(fn, bands)
-    return map(fn, bands)
+    made on up to :data:`BAND_THREADS` host threads (:func:`tpsv.threads.map_ordered`: each band's
+    values are what one thread computes)."""
+    return map_ordered("bands", fn, row_bands(height, width, pixels), BAND_THREADS)
 
 
 def for_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> None:
