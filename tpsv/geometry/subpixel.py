@@ -647,8 +647,7 @@ def _contours(reading: BorderReading, comp: np.ndarray, region: int,
 
 def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int, H: int) -> np.ndarray:
     """RDP tolerance of every contour point: ``tolerance`` where the colours tell, the label map's half pixel where not."""
-    cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
-    cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
+    cy, cx = _pixels_of(p, W, H)
     tol = tolerance + (LOOSE_TOLERANCE - tolerance) * (1.0 - reading.near_trust[cy, cx])
     # where a border meets the image's frame, and the frame's corners, stay where they are
     fx = (p[:, 0] == 0.0) | (p[:, 0] == W)
@@ -659,9 +658,13 @@ def _tolerances(reading: BorderReading, p: np.ndarray, tolerance: float, W: int,
 
 def _clean_points(reading: BorderReading, p: np.ndarray, W: int, H: int) -> np.ndarray:
     """Which contour points lie on a border between flat colours (:attr:`BorderReading.near_clean`)."""
-    cx = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
-    cy = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
-    return reading.near_clean[cy, cx]
+    return reading.near_clean[_pixels_of(p, W, H)]
+
+
+def _pixels_of(p: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, cols)`` of the pixel each contour point ``p`` (n, 2) lies in, clipped to the image."""
+    return (np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1),
+            np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1))
 
 
 def _point_keys(polys: list[np.ndarray]) -> list[np.ndarray]:
@@ -1431,7 +1434,7 @@ def _caps(p: np.ndarray, tol: np.ndarray, tolerance: float) -> list[tuple[np.nda
                 c1[1 - side], c1[side] = line_b, cap_line
                 c2[1 - side], c2[side] = line_a, cap_line
                 # the runs' last two points go too: the reading bends a bar's sides next to its end
-                out.append(((k - 2 + np.arange(m + 7)) % n, np.array([c1, c2])))
+                out.append((span, np.array([c1, c2])))
             break
     return out
 
