@@ -213,7 +213,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
         # one unrefined
         graphic, flat = picture_kind(rgb)
         lab = flat if lab is None else lab
-        steps = 0 if graphic == "crisp" else refine_steps((w, h), size, refine_iterations)
+        steps = refine_steps((w, h), size, refine_iterations, graphic)
         with progress_bar(ctx, fit_iterations + steps, "magnify") as bar:
             model, big = magnify_raster(rgb, size, labels=lab, iterations=fit_iterations, device=device,
                                         progress=advance(bar), refine_iterations=refine_iterations, graphic=graphic)

@@ -146,11 +146,13 @@ def picture_kind(rgb: np.ndarray) -> tuple[str, np.ndarray | None]:
     return ("crisp" if mixed == 0.0 else "smooth"), labels
 
 
-def refine_steps(input_size: tuple[int, int], size: tuple[int, int], refine_iterations: int) -> int:
+def refine_steps(input_size: tuple[int, int], size: tuple[int, int], refine_iterations: int,
+                 graphic: str | None = None) -> int:
     """Refinement steps :func:`magnify_raster` runs: ``refine_iterations`` when ``size`` is larger than
-    ``input_size`` (both (width, height)) and not smaller in either direction, else 0."""
+    ``input_size`` (both (width, height)) and not smaller in either direction, else 0; 0 for a crisp
+    graphic (``graphic``, :func:`picture_kind`)."""
     grows = size[0] >= input_size[0] and size[1] >= input_size[1] and tuple(size) != tuple(input_size)
-    return int(refine_iterations) if grows else 0
+    return int(refine_iterations) if grows and graphic != "crisp" else 0
 
 
 def magnify_raster(
@@ -216,7 +218,7 @@ def magnify_raster(
     if graphic is None:
         graphic, found = picture_kind(rgb)
         labels = found if labels is None else labels
-    steps = 0 if graphic == "crisp" else refine_steps((w, h), size, refine_iterations)
+    steps = refine_steps((w, h), size, refine_iterations, graphic)
     total = iterations + steps
     model, pixel = dense_model(rgb, labels, fitted=graphic != "photo")
     model = back_project(model, pixel, rgb, size, iterations=iterations, device=device,
