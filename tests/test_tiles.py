@@ -383,6 +383,33 @@ def test_bands_rounded_on_the_device_as_the_host_rounds(depth):
     assert np.array_equal(got, (to_uint8 if depth == 8 else to_uint16)(v))
 
 
+def test_device_kernels_are_whole_before_their_first_launch():
+    """No kernel of ``tpsv.gpu`` is made at a launch: a generic kernel has its overloads declared at
+    import, and launching ``to_uint`` at both depths leaves its module's hash as it was. An overload made
+    at a first launch from two host threads at once (the bands of a large render) raced in Warp's module
+    hash (a KeyError in about one fresh process in four)."""
+    import importlib
+    import pkgutil
+
+    import tpsv.gpu
+    from tpsv.gpu import warp
+    from tpsv.gpu import quantize
+
+    wp = warp()
+    kernels = []
+    for info in pkgutil.iter_modules(tpsv.gpu.__path__):
+        mod = importlib.import_module(f"tpsv.gpu.{info.name}")
+        kernels += [k for k in vars(mod).values() if isinstance(k, wp.Kernel)]
+    assert len(kernels) > 30
+    assert all(k.overloads for k in kernels if k.is_generic)
+    module = quantize._to_uint.module
+    before = module.get_module_hash()
+    frame = wp.array(np.full((64, 5, 3), 0.5, np.float32), dtype=wp.vec3f, device="cpu")
+    for depth in (8, 16):
+        quantize.to_uint(frame, depth, threads=4)
+    assert module.get_module_hash() == before
+
+
 def test_png_adler32_combine_and_header():
     rng = np.random.default_rng(0)
     data = rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes() + b"\xff" * 70_000

@@ -29,6 +29,15 @@ def _to_uint(frame: wp.array2d(dtype=wp.vec3f), row0: int, top: wp.float64, out:
         out[y, x, k] = out.dtype(wp.int32(level))
 
 
+# Both overloads are declared here, at import, so the module is whole before any launch: an overload made at
+# a first launch is registered into the module then, and when two host threads make it at once (the bands of a
+# large render, ``_launch_banded``) Warp's module hash raced, a KeyError in about one fresh process in four.
+for _depth in (wp.uint8, wp.uint16):
+    wp.overload(_to_uint, {"frame": wp.array2d(dtype=wp.vec3f), "row0": int, "top": wp.float64,
+                           "out": wp.array3d(dtype=_depth)})
+del _depth
+
+
 def to_uint(frame: wp.array, depth: int, threads: int | None = None) -> wp.array:
     """``frame`` (``(H, W)`` of ``vec3f``, sRGB in ``[0, 1]``) as ``(H, W, 3)`` uint8 (``depth`` 8)
     or uint16 (16) on the same device.
