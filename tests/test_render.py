@@ -344,3 +344,28 @@ def test_a_forked_child_renders(smooth_model, every_band):
         os._exit(0 if same else 3)
     _, status = os.waitpid(pid, 0)
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+
+
+def test_renders_from_several_threads_at_once_are_one_threads():
+    """Callers rendering from several threads of one process get each model's own render: the CPU
+    device's tile solve (one static scratch block in Warp) runs one at a time (before, two solves at once
+    crashed the process)."""
+    import threading
+
+    from conftest import small_sample
+    from tpsv.rendering.magnify import dense_model
+
+    models = [dense_model(small_sample(width=w))[0] for w in (40, 48, 56, 64)]
+    want = [render.render(m) for m in models]
+    got = [[None] * 3 for _ in models]
+
+    def work(i):
+        for k in range(3):
+            got[i][k] = render.render(models[i])
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(len(models))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(np.array_equal(g, w) for gs, w in zip(got, want) for g in gs)
