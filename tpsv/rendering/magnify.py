@@ -33,6 +33,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .. import tps
 from ..color import srgb_to_lab
 from ..geometry.regions import build_regions, to_patch_space
 from ..model import GRADATION, Features, Model, Params
@@ -119,10 +120,15 @@ def back_project(
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
     current = target.copy()
     feats = model.features
+    # the features never move: grouped into kernels once, each step only takes the new colours
+    kernels = tps.group_kernels(model)
+    duplicates = tps.Duplicates.of_features(feats)
     for step in range(iterations):
         if progress is not None:
             progress(step, iterations)
-        big = render(model, width=size[0], height=size[1], device=device)
+        if step:
+            kernels = tps.recolor(kernels, model.features, duplicates)
+        big = render(model, width=size[0], height=size[1], device=device, kernels=kernels)
         down = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA).reshape(-1, 3)[pixel]
         # Colours may leave the gamut a little so that blurred neighbours land on target.
         current = np.clip(current + (target - down), -0.25, 1.25)
