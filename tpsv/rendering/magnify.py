@@ -120,14 +120,12 @@ def back_project(
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
     current = target.copy()
     feats = model.features
-    # the features never move: grouped into kernels once, each step only takes the new colours
-    kernels = tps.group_kernels(model)
-    duplicates = tps.Duplicates.of_features(feats)
+    # the features never move: grouped into kernels once, each later step only takes the new colours
+    kernels, duplicates = None, tps.Duplicates.of_features(feats)
     for step in range(iterations):
         if progress is not None:
             progress(step, iterations)
-        if step:
-            kernels = tps.recolor(kernels, model.features, duplicates)
+        kernels = tps.group_kernels(model) if kernels is None else tps.recolor(kernels, model.features, duplicates)
         big = render(model, width=size[0], height=size[1], device=device, kernels=kernels)
         down = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA).reshape(-1, 3)[pixel]
         # Colours may leave the gamut a little so that blurred neighbours land on target.
