@@ -93,6 +93,7 @@ def back_project(
     iterations: int = 6,
     device: str = "cpu",
     progress=None,
+    kernels=None,
 ) -> Model:
     """Fit feature colours so that the render at ``size``, area-downscaled to the
     input size, reproduces ``rgb``.
@@ -110,6 +111,9 @@ def back_project(
         Warp device for the renders.
     progress : callable(done, total), optional
         Called after each step.
+    kernels : KernelSet, optional
+        ``tps.group_kernels(model)``, when the caller has it (the features
+        never move: each step only takes the new colours, :func:`tpsv.tps.recolor`).
 
     Returns
     -------
@@ -120,8 +124,8 @@ def back_project(
     target = rgb.reshape(-1, 3)[pixel].astype(np.float64)
     current = target.copy()
     feats = model.features
-    # the features never move: grouped into kernels once, each later step only takes the new colours
-    kernels, duplicates = None, tps.Duplicates.of_features(feats)
+    # the features never move: grouped into kernels once, each step only takes the new colours
+    duplicates = tps.Duplicates.of_features(feats)
     for step in range(iterations):
         if progress is not None:
             progress(step, iterations)
@@ -225,9 +229,12 @@ def magnify_raster(
     steps = refine_steps((w, h), size, refine_iterations, graphic)
     total = iterations + steps
     model, pixel = dense_model(rgb, labels, fitted=graphic != "photo")
+    # grouped once for the fit's renders and the last one
+    kernels = tps.group_kernels(model)
     model = back_project(model, pixel, rgb, size, iterations=iterations, device=device,
-                         progress=None if progress is None else lambda done, _: progress(done, total))
-    big = render(model, width=size[0], height=size[1], device=device)
+                         progress=None if progress is None else lambda done, _: progress(done, total),
+                         kernels=kernels)
+    big = render(model, width=size[0], height=size[1], device=device, kernels=tps.recolor(kernels, model.features))
     if steps:
         big = refine_magnified(big, rgb, steps, device=device,
                                progress=None if progress is None else lambda done, _: progress(iterations + done, total))
