@@ -75,8 +75,7 @@ def map_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> list:
 
 def for_bands(fn, height: int, width: int, pixels: int = BAND_PIXELS) -> None:
     """``fn((a, b))`` for every band of :func:`row_bands`, on a few host threads (:func:`map_bands`)."""
-    for _ in map_bands(fn, height, width, pixels):
-        pass
+    map_bands(fn, height, width, pixels)
 
 
 __all__ = ["BAND_PIXELS", "BAND_THREADS", "for_bands", "lab_image", "map_bands", "row_bands"]
