@@ -84,7 +84,7 @@ import numpy as np
 from .. import tps
 from ..color import lab_to_srgb_jacobian, srgb_to_lab
 from ..rendering.pixelmap import pixel_map
-from ..threads import pool as host_pool, usable_cores
+from ..threads import map_ordered
 
 #: Largest number of stored coefficients of ``A`` (float32); beyond, pixels are subsampled.
 MAX_NNZ = 40_000_000
@@ -346,21 +346,10 @@ def cardinal_matrices(ks: tps.KernelSet, dtype=np.float64, wanted: np.ndarray | 
 # --------------------------------------------------------------------------- design matrix
 
 
-def _threads() -> int:
-    """Host threads for the fit's batched numpy work (the cores this process may use, at most 8)."""
-    return max(1, min(8, usable_cores()))
-
-
-def _pool_map(fn, items):
-    """``map(fn, items)`` on a few host threads (numpy releases the GIL in the heavy calls).
-
-    One pool serves every call (:func:`tpsv.threads.pool`); ``fn`` must not
-    call ``_pool_map`` itself.
-    """
-    items = list(items)
-    if len(items) > 1 and _threads() > 1:
-        return list(host_pool("fit", _threads()).map(fn, items))
-    return [fn(x) for x in items]
+def _pool_map(fn, items) -> list:
+    """``[fn(x) for x in items]`` on up to 8 host threads of the fit's pool (:func:`tpsv.threads.map_ordered`;
+    numpy releases the GIL in the heavy calls); ``fn`` must not call ``_pool_map`` itself."""
+    return map_ordered("fit", fn, items)
 
 
 @dataclass
