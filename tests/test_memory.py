@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tpsv import metrics
+from tpsv import metrics, threads
 from tpsv.color import srgb_to_lab
 from tpsv.encode import detail
 from tpsv.encode.features import lab_gradient
@@ -55,7 +55,7 @@ def test_the_fit_design_is_built_within_twice_its_size(monkeypatch):
     from tpsv.encode import fit
     from tpsv.rendering.magnify import dense_model
 
-    monkeypatch.setattr(fit, "_threads", lambda: 1)
+    monkeypatch.setattr(threads, "host_cores", lambda: 1)  # the fit on one host thread
     rgb = photo(256, 256)
     model, _ = dense_model(rgb)
     ks = tps.group_kernels(model)
@@ -96,7 +96,7 @@ def test_the_fit_in_groups_of_regions_holds_less_and_fits_alike(monkeypatch):
     from tpsv.encode import fit
     from tpsv.rendering.magnify import dense_model
 
-    monkeypatch.setattr(fit, "_threads", lambda: 1)
+    monkeypatch.setattr(threads, "host_cores", lambda: 1)  # the fit on one host thread
     rgb = photo(192, 192)
     labels = np.zeros((192, 192), np.int32)
     labels[:, 96:] = 1
@@ -131,7 +131,7 @@ def test_a_region_past_the_budget_is_fitted_in_strips_that_hold_less_and_fit_ali
     from tpsv.encode import fit
     from tpsv.rendering.magnify import dense_model
 
-    monkeypatch.setattr(fit, "_threads", lambda: 1)
+    monkeypatch.setattr(threads, "host_cores", lambda: 1)  # the fit on one host thread
     rgb = photo(192, 192)
     model, _ = dense_model(rgb)
     ks = tps.group_kernels(model)
@@ -230,8 +230,6 @@ def test_mse_and_texels_equal_whole_image():
     qb = np.round(np.clip(b, 0, 1) * 255.0) / 255.0
     assert metrics.mse(a, b) == pytest.approx(float(np.mean((qa - qb) ** 2)), rel=1e-12)
     # bands summed on the host's threads: exact, so the same on any number of them
-    from tpsv import threads
-
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(threads, "host_cores", lambda: 1)
         one = metrics.mse(a, b)
