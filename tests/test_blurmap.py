@@ -10,8 +10,8 @@ import pytest
 from tests.test_codec import assert_models_identical, grid_ctrl, patch_header, reject, with_quantized
 from tpsv import codec
 from tpsv.codec import layout, quant
-from tpsv.encode.vectorize import build_geometry
-from tpsv.geometry.edgewidth import FLAT_SIGMA, MAP_CELL, border_cells, fill_map
+from tpsv.encode.vectorize import build_geometry, soften_false_steps
+from tpsv.geometry.edgewidth import FALSE_SHARE, FALSE_STEP, FLAT_SIGMA, MAP_CELL, border_cells, false_steps, fill_map
 from tpsv.gpu.coverage import DeviceBorders
 from tpsv.model import BlurMap, Features, Model, Patch, Region
 from tpsv.rendering.borders import Borders, blur_at
@@ -79,6 +79,49 @@ def test_a_flat_stretch_is_blurred_and_a_step_keeps_its_width():
     flat = blur_at(bmap, np.array([48.0, 56.0]), np.array([32.0, 32.0]))
     assert (step < 0.5).all(), step
     assert (flat >= FLAT_SIGMA).all(), flat
+
+
+def test_false_steps_are_vector_steps_the_photo_does_not_share():
+    v = np.array([[0.3, 0.0, 0.0]] * 5 + [[0.05, 0.0, 0.0]])
+    photo = np.array([[0.3, 0.0, 0.0],  # the same step: a true edge
+                      [0.6, 0.1, 0.0],  # a larger one along it: the vector undershoots, no seam
+                      [0.0, 0.2, 0.0],  # a step across it only
+                      [0.1, 0.0, 0.0],  # a third of it
+                      [-0.3, 0.0, 0.0],  # the other way
+                      [0.0, 0.0, 0.0]])  # a vector step too small to matter
+    assert false_steps(photo, v).tolist() == [False, False, True, True, True, False]
+    # the limits themselves
+    assert false_steps(np.array([[FALSE_SHARE * FALSE_STEP, 0, 0]]), np.array([[FALSE_STEP, 0, 0]])).tolist() == [False]
+    assert false_steps(np.array([[0.0, 0, 0]]), np.array([[FALSE_STEP, 0, 0]])).tolist() == [True]
+
+
+def test_a_border_the_vector_image_steps_across_alone_is_softened():
+    """A label map cuts the picture in two at x = 32: dark left, grey right, a sharp step. Over the
+    middle rows a white strip 6 px wide runs along the cut on the left, so there the photo steps down
+    (white to grey), sharply too, while a vector image that cannot hold the strip steps up (dark to
+    grey). Those cells get FLAT_SIGMA; the rows where the photo steps as the vector image does keep
+    their sharp reading."""
+    n = 64
+    rgb = np.full((n, n, 3), 0.15, np.float32)
+    rgb[:, 32:] = 0.6
+    rgb[20:44, 26:32] = 1.0
+    labels = np.zeros((n, n), np.int32)
+    labels[:, 32:] = 1
+    g = build_geometry(labels, rgb)
+    ys = np.array([4.0, 8.0, 28.0, 32.0, 36.0, 56.0, 60.0])
+    xs = np.full(ys.size, 32.0)
+    read = blur_at((np.asarray(g.blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)), xs, ys)
+    assert (read < 0.5).all(), read  # from the photo alone: sharp steps all along
+    shown = np.where(np.arange(n)[None, :, None] < 32, 0.15, 0.6) * np.ones((n, n, 3))  # the strip left out
+    wide = soften_false_steps(rgb, g, shown.astype(np.float32))
+    assert wide is not None and wide.cell == MAP_CELL
+    sigma = blur_at((np.asarray(wide.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)), xs, ys)
+    assert (sigma[[0, 1, 5, 6]] < 0.5).all(), sigma  # the true step stays sharp
+    # the strip's rows are softened (FLAT_SIGMA at its points; the cells' 3 x 3 medians and the bilinear
+    # sample between cells mix in a little of the readings next to them)
+    assert (sigma[[2, 3, 4]] > FLAT_SIGMA - 0.25).all(), sigma
+    # a vector image that holds the strip steps as the photo does: nothing to soften
+    assert soften_false_steps(rgb, g, rgb) is None
 
 
 def test_the_renderer_follows_the_map_along_one_border():
@@ -261,3 +304,26 @@ def test_a_grid_of_sharp_squares_reads_sharp_borders():
     regions, index = build_regions(labels, rgb=rgb)
     assert np.array_equal(index, labels)
     assert len(edge_widths(rgb, regions, index)) == 0  # every border sharp
+
+
+def test_the_encoder_softens_the_borders_its_vector_base_steps_across_alone():
+    """Encoded with its texture (the default), the picture above keeps a sharp border where the photo
+    steps and gets a soft one along the strip, which the vector base cannot hold (a 6 px strip under its
+    lattice); without the texture the widths are the photo's alone."""
+    from tpsv.encode.rate import encode_quality
+
+    n = 64
+    rgb = np.full((n, n, 3), 0.15, np.float32)
+    rgb[:, 32:] = 0.6
+    rgb[20:44, 26:32] = 1.0
+    labels = np.zeros((n, n), np.int32)
+    labels[:, 32:] = 1
+    ys = np.array([4.0, 8.0, 28.0, 32.0, 36.0, 56.0, 60.0])
+
+    def widths(model):
+        return blur_at((np.asarray(model.blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)),
+                       np.full(ys.size, 32.0), ys)
+
+    with_detail = widths(encode_quality(rgb, labels).model)
+    assert (with_detail[[0, 1, 5, 6]] < 0.5).all() and (with_detail[[2, 3, 4]] > 1.0).all(), with_detail
+    assert (widths(encode_quality(rgb, labels, detail=False).model) < 0.5).all()

@@ -39,7 +39,7 @@ from . import detail as detail_layer
 from .features import FINE_LATTICE_PX, LATTICE_PX, FeatureExtractor
 from .memory import give_back
 from .vectorize import (Candidates, Evaluation, VectorizeResult, alpha_geometry, fit_model, make_model,
-                        scheme_params)
+                        scheme_params, soften_false_steps)
 
 #: The default quality: at least 32 dB on every bundled sample (README, "Quality").
 DEFAULT_QUALITY = 75
@@ -256,6 +256,14 @@ class Trials:
         data = codec.encode(model)
         decoded = codec.decode(data)
         shown = render(decoded, device=self.device)
+        # borders where the base steps as the photo does not are softened, and the base drawn again: the
+        # texture holds the difference, and magnified its interpolation cannot follow a sharp step
+        wide = soften_false_steps(self.rgb, self.geometry, shown)
+        if wide is not None:
+            model = replace(model, blur_map=wide)
+            data = codec.encode(model)
+            decoded = codec.decode(data)
+            shown = render(decoded, device=self.device)
         return Evaluation(data, decoded, metrics.mse(self.rgb, shown)), shown
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:

@@ -346,6 +346,29 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
     return Geometry(regions=regions, index=index, blur=blur, blur_map=blur_map, curves=True)
 
 
+def soften_false_steps(rgb: np.ndarray, geometry: Geometry, shown: np.ndarray) -> BlurMap | None:
+    """The geometry's blur map with the border points where the vector image steps as the photo does not
+    widened to ``edgewidth.FLAT_SIGMA`` (:func:`tpsv.geometry.edgewidth.false_steps`), or None when that
+    changes nothing (or the geometry has no map).
+
+    Parameters
+    ----------
+    rgb : ndarray (H, W, 3) float32 in [0, 1]
+    geometry : Geometry
+        With the widths read from ``rgb`` (:func:`build_geometry`).
+    shown : ndarray (H, W, 3)
+        The vector image (before its detail layer) rendered at scale 1.
+    """
+    if geometry.blur_map is None:
+        return None
+    h, w = geometry.index.shape
+    _, wide = edge_width_map(rgb, geometry.regions, geometry.index,
+                             drawn=curves.drawn_regions(geometry.regions, w, h, curves.DRAWN_TOL), vector=shown)
+    if wide is None or np.array_equal(wide.sigma, geometry.blur_map.sigma):
+        return None
+    return wide
+
+
 def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted",
                    transparent: np.ndarray | None = None) -> Geometry:
     """Stages 1-2 for a photo: its label map (segmented when absent), then its regions.

@@ -70,6 +70,12 @@ MISPLACED = 0.7
 #: (astronaut, chelsea, coffee, rocket): widths per pair 22.39/27.70/22.80/22.20 dB; this rule with 1.5 px
 #: 22.57/28.11/23.18/22.31 (with 1 px about the same; with 2 px and 4 px cells 22.57/27.82/23.03/22.51).
 FLAT_SIGMA = 1.5
+#: Least vector step (sRGB, Euclidean) across a border, and the most of it the photo's step may have, for a
+#: point to get :data:`FLAT_SIGMA` (:func:`false_steps`).
+FALSE_STEP = 0.08
+FALSE_SHARE = 0.5
+#: Distance (px) from the border at which :func:`false_steps` compares the two.
+FALSE_PROBE = 1.5
 #: Cell side (px) of the blur map (:func:`edge_width_map`). 4 px cells cost about twice the bytes (70-200 B a
 #: sample, 8 px cells 60-130) and were no better on the whole: 22.62/27.73/22.99/22.50 dB (with 1 px).
 MAP_CELL = 8
@@ -182,9 +188,11 @@ def gradient_magnitude(rgb: np.ndarray) -> np.ndarray:
     return grad
 
 
-def _readings(rgb: np.ndarray, regions, index: np.ndarray):
+def _readings(rgb: np.ndarray, regions, index: np.ndarray, vector: np.ndarray | None = None):
     """The readings at points every pixel along the shared borders (module doc), or None without borders:
-    ``(f, a, b, ok, placed, sigma_eff, offset)``."""
+    ``(f, a, b, ok, placed, sigma_eff, offset, false)``; ``false`` marks the points where ``vector`` (a
+    render of the vector image) steps across the border as the photo does not (:func:`false_steps`),
+    all False without it."""
     rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
     a, b, p0, p1 = _shared_edges(regions)
     if not len(a):
@@ -236,12 +244,34 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray):
     placed = ok.copy()  # both sides readable where they should be
     ok &= (contrast >= MIN_CONTRAST) & (g > 1e-6)
     sigma_eff = contrast / (np.sqrt(2.0 * np.pi) * np.maximum(g, 1e-6))
-    return f, a, b, ok, placed, sigma_eff, offset
+    false = np.zeros(len(a), bool)
+    if vector is not None:
+        # read close to the border: a thin piece of a region (a finger of an object split in two) is
+        # where the step shows most
+        near_a, near_b = f + FALSE_PROBE * normal, f - FALSE_PROBE * normal
+        false = (region_at(near_a) == a) & (region_at(near_b) == b) & false_steps(
+            _bilinear(rgb, near_a) - _bilinear(rgb, near_b), _bilinear(vector, near_a) - _bilinear(vector, near_b))
+    return f, a, b, ok, placed, sigma_eff, offset, false
+
+
+def false_steps(photo: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """Border points where the vector image steps as the photo does not: ``photo`` and ``vector`` (k, 3)
+    are the colour differences across the border (side a minus side b, :data:`FALSE_PROBE` px out).
+
+    A point is marked where the vector step is at least :data:`FALSE_STEP` and the photo's step along it
+    is less than :data:`FALSE_SHARE` of it (a flat or textured stretch the label map cut, an object the
+    automatic regions split). There the detail layer holds the difference, at scale 1 pixel by pixel;
+    magnified, its smooth interpolation cannot follow a sharp vector step, and the two make a seam.
+    """
+    dv = np.asarray(vector, np.float64)
+    norm2 = (dv * dv).sum(axis=1)
+    along = (np.asarray(photo, np.float64) * dv).sum(axis=1)
+    return (norm2 >= FALSE_STEP ** 2) & (along < FALSE_SHARE * norm2)
 
 
 def _pair_widths(readings, n_regions: int) -> np.ndarray:
     """:func:`edge_widths` from the :func:`_readings`: one width per pair of regions."""
-    f, a, b, ok, placed, sigma_eff, offset = readings
+    f, a, b, ok, placed, sigma_eff, offset = readings[:7]
     out = []
     key = a * (n_regions + 1) + b
     for k in np.unique(key):
@@ -366,7 +396,8 @@ def fill_map(width: int, height: int, cell: int, cells: np.ndarray, values: np.n
     return BlurMap(cell=int(cell), sigma=grid[1:-1, 1:-1].astype(np.float32))
 
 
-def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell: int = MAP_CELL):
+def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell: int = MAP_CELL,
+                   vector: np.ndarray | None = None):
     """The edge widths of the shared borders, per pair and point by point.
 
     Each reading point gets a width of its own, never below its pair's
@@ -387,6 +418,11 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
         along them); default ``regions``.
     cell : int
         Cell side of the map, px.
+    vector : ndarray (H, W, 3), optional
+        The vector image's render at scale 1 (before its detail layer): where it
+        steps across a border as the photo does not (:func:`false_steps`), the
+        point gets at least :data:`FLAT_SIGMA`, so that magnified, the vector step
+        is as soft as the detail layer's interpolation of the difference.
 
     Returns
     -------
@@ -396,11 +432,11 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
         None without shared borders.
     """
     h, w = index.shape
-    r = _readings(rgb, regions if drawn is None else drawn, index)
+    r = _readings(rgb, regions if drawn is None else drawn, index, vector)
     if r is None:
         return np.zeros((0, 3)), None
     pair = _pair_widths(r, len(regions))
-    f, a, b, ok, placed, sigma_eff, offset = r
+    f, a, b, ok, placed, sigma_eff, offset, false = r
     n_reg = len(regions) + 1
     # each point's width; unreadable points take their pair's
     pair_keys = (pair[:, 0] * n_reg + pair[:, 1]).astype(np.int64)  # sorted, as edge_widths lists them
@@ -417,6 +453,7 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
     # never narrower than the pair's: one point's reading is noisy, and where a stretch reads sharp the
     # pair's rules (an outline off the photo's edge somewhere along it) still hold
     sp = np.maximum(sp, pair_sigma)
+    sp[false] = np.maximum(sp[false], FLAT_SIGMA)
     gh, gw = -(-h // cell), -(-w // cell)
     ci = np.clip(np.floor(f[:, 1] / cell).astype(np.int64), 0, gh - 1)
     cj = np.clip(np.floor(f[:, 0] / cell).astype(np.int64), 0, gw - 1)
