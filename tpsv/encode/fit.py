@@ -563,8 +563,9 @@ def fit_colors(
     -------
     (Model, FitReport)
         A new model with fitted ``features.lab`` (float32, clipped to the
-        stored Lab ranges); features merged away by the grouping (duplicates)
-        take their representative's colour. ``FitReport.mse`` estimates the
+        stored Lab ranges; features fitted to neutral grey pixels alone,
+        :data:`NEUTRAL_AB`, are grey); features merged away by the grouping
+        (duplicates) take their representative's colour. ``FitReport.mse`` estimates the
         sRGB mean squared error at the fitted pixels (linearised, no range
         clamp, no 8-bit rounding).
     """
@@ -624,6 +625,10 @@ def fit_colors(
                 x0, counted = X, strip.core.holds(st_t)
             Xg, it_g, r0, r1 = _region_cg(normal, normal.rhs(lab_t, h0), Minv, x0, freg, iterations, tol)
             X[mine] = Xg[mine]
+            if np.abs(lab_t[:, 1:]).max(initial=0.0) <= NEUTRAL_AB:
+                # grey pixels stay grey: the sRGB metric's cross terms would pay a, b to cancel part of
+                # the L error, a false tint (a grey photo came back with lilac rims at 4x)
+                X[mine, 1:] = 0.0
             X[~used] = h0[~used]
             X[:, 0] = np.clip(X[:, 0], 0.0, 100.0)
             X[:, 1:] = np.clip(X[:, 1:], -128.0, 127.0)
@@ -670,6 +675,11 @@ def region_groups(pixels: np.ndarray, most: int) -> list[np.ndarray]:
     if cur:
         groups.append(np.array(cur))
     return groups or [np.zeros(0, np.int64)]
+
+
+#: Largest |a|, |b| (Lab) of pixels taken as neutral grey: features fitted to such pixels alone get a = b = 0
+#: (:func:`fit_colors`; an exact grey sRGB pixel reads about 1e-5).
+NEUTRAL_AB = 0.5
 
 
 @dataclass(frozen=True)
