@@ -89,7 +89,7 @@ import numpy as np
 from .. import codec, metrics, tps
 from ..errors import TpsvError
 from ..geometry import curves, segment
-from ..geometry.edgewidth import edge_width_map
+from ..geometry.edgewidth import edge_width_map, soften_map
 from ..geometry.regions import build_regions
 from ..geometry.subpixel import own_side_colours
 from ..model import BlurMap, Features, Model, Params, Region
@@ -347,26 +347,23 @@ def build_geometry(labels: np.ndarray, rgb: np.ndarray | None = None) -> Geometr
 
 
 def soften_false_steps(rgb: np.ndarray, geometry: Geometry, shown: np.ndarray) -> BlurMap | None:
-    """The geometry's blur map with the border points where the vector image steps as the photo does not
-    widened to ``edgewidth.FLAT_SIGMA`` (:func:`tpsv.geometry.edgewidth.false_steps`), or None when that
-    changes nothing (or the geometry has no map).
+    """The geometry's blur map with the borders where the vector image steps as the photo does not
+    softened (:func:`tpsv.geometry.edgewidth.soften_map`), or None when that changes nothing (or the
+    geometry has no map).
 
     Parameters
     ----------
     rgb : ndarray (H, W, 3) float32 in [0, 1]
+        The colours the model is fitted to.
     geometry : Geometry
-        With the widths read from ``rgb`` (:func:`build_geometry`).
     shown : ndarray (H, W, 3)
         The vector image (before its detail layer) rendered at scale 1.
     """
     if geometry.blur_map is None:
         return None
     h, w = geometry.index.shape
-    _, wide = edge_width_map(rgb, geometry.regions, geometry.index,
-                             drawn=curves.drawn_regions(geometry.regions, w, h, curves.DRAWN_TOL), vector=shown)
-    if wide is None or np.array_equal(wide.sigma, geometry.blur_map.sigma):
-        return None
-    return wide
+    return soften_map(geometry.blur_map, rgb, shown, geometry.regions, geometry.index,
+                      drawn=curves.drawn_regions(geometry.regions, w, h, curves.DRAWN_TOL))
 
 
 def image_geometry(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0, outlines: str = "fitted",
