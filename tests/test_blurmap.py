@@ -95,6 +95,27 @@ def test_false_steps_are_vector_steps_the_photo_does_not_share():
     assert false_steps(np.array([[0.0, 0, 0]]), np.array([[FALSE_STEP, 0, 0]])).tolist() == [True]
 
 
+def strip_picture(n: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """``n x n``: dark left, grey right, a label map cut at x = 32, and a white strip 6 px wide along
+    the cut on the left over the middle rows (the tests below)."""
+    rgb = np.full((n, n, 3), 0.15, np.float32)
+    rgb[:, 32:] = 0.6
+    rgb[20:44, 26:32] = 1.0
+    labels = np.zeros((n, n), np.int32)
+    labels[:, 32:] = 1
+    return rgb, labels
+
+
+#: Rows where :func:`cut_widths` samples the map: above the strip, along it, below it.
+CUT_ROWS = np.array([4.0, 8.0, 28.0, 32.0, 36.0, 56.0, 60.0])
+
+
+def cut_widths(blur_map) -> np.ndarray:
+    """The map's widths along the strip picture's cut (x = 32) at :data:`CUT_ROWS`."""
+    return blur_at((np.asarray(blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)),
+                   np.full(CUT_ROWS.size, 32.0), CUT_ROWS)
+
+
 def test_a_border_the_vector_image_steps_across_alone_is_softened():
     """A label map cuts the picture in two at x = 32: dark left, grey right, a sharp step. Over the
     middle rows a white strip 6 px wide runs along the cut on the left, so there the photo steps down
@@ -102,20 +123,14 @@ def test_a_border_the_vector_image_steps_across_alone_is_softened():
     grey). Those cells get FLAT_SIGMA; the rows where the photo steps as the vector image does keep
     their sharp reading."""
     n = 64
-    rgb = np.full((n, n, 3), 0.15, np.float32)
-    rgb[:, 32:] = 0.6
-    rgb[20:44, 26:32] = 1.0
-    labels = np.zeros((n, n), np.int32)
-    labels[:, 32:] = 1
+    rgb, labels = strip_picture(n)
     g = build_geometry(labels, rgb)
-    ys = np.array([4.0, 8.0, 28.0, 32.0, 36.0, 56.0, 60.0])
-    xs = np.full(ys.size, 32.0)
-    read = blur_at((np.asarray(g.blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)), xs, ys)
+    read = cut_widths(g.blur_map)
     assert (read < 0.5).all(), read  # from the photo alone: sharp steps all along
     shown = np.where(np.arange(n)[None, :, None] < 32, 0.15, 0.6) * np.ones((n, n, 3))  # the strip left out
     wide = soften_false_steps(rgb, g, shown.astype(np.float32))
     assert wide is not None and wide.cell == MAP_CELL
-    sigma = blur_at((np.asarray(wide.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)), xs, ys)
+    sigma = cut_widths(wide)
     assert (sigma[[0, 1, 5, 6]] < 0.5).all(), sigma  # the true step stays sharp
     # the strip's rows are softened: cells along it raised to FLAT_SIGMA (where most points of their
     # 3 x 3 block are false steps), the sample on the border between two columns of cells their mean
@@ -308,23 +323,12 @@ def test_a_grid_of_sharp_squares_reads_sharp_borders():
 
 
 def test_the_encoder_softens_the_borders_its_vector_base_steps_across_alone():
-    """Encoded with its texture (the default), the picture above keeps a sharp border where the photo
+    """Encoded with its texture (the default), the strip picture keeps a sharp border where the photo
     steps and gets a soft one along the strip, which the vector base cannot hold (a 6 px strip under its
     lattice); without the texture the widths are the photo's alone."""
     from tpsv.encode.rate import encode_quality
 
-    n = 64
-    rgb = np.full((n, n, 3), 0.15, np.float32)
-    rgb[:, 32:] = 0.6
-    rgb[20:44, 26:32] = 1.0
-    labels = np.zeros((n, n), np.int32)
-    labels[:, 32:] = 1
-    ys = np.array([4.0, 8.0, 28.0, 32.0, 36.0, 56.0, 60.0])
-
-    def widths(model):
-        return blur_at((np.asarray(model.blur_map.sigma, np.float64), float(MAP_CELL), float(MAP_CELL)),
-                       np.full(ys.size, 32.0), ys)
-
-    with_detail = widths(encode_quality(rgb, labels).model)
+    rgb, labels = strip_picture()
+    with_detail = cut_widths(encode_quality(rgb, labels).model.blur_map)
     assert (with_detail[[0, 1, 5, 6]] < 0.5).all() and (with_detail[[2, 3, 4]] > 1.0).all(), with_detail
-    assert (widths(encode_quality(rgb, labels, detail=False).model) < 0.5).all()
+    assert (cut_widths(encode_quality(rgb, labels, detail=False).model.blur_map) < 0.5).all()

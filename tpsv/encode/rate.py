@@ -253,17 +253,17 @@ class Trials:
         model = fit_model(self.rgb, self.geometry, model, base_fit_sub(w, h), BASE_FIT_ITERATIONS)
         self.geometry.forget("lattice", "fit", "borders", "st")  # the render makes its own maps
         give_back()
-        data = codec.encode(model)
-        decoded = codec.decode(data)
-        shown = render(decoded, device=self.device)
+        def drawn(model):
+            data = codec.encode(model)
+            decoded = codec.decode(data)
+            return data, decoded, render(decoded, device=self.device)
+
+        data, decoded, shown = drawn(model)
         # borders where the base steps as the photo does not are softened, and the base drawn again: the
         # texture holds the difference, and magnified its interpolation cannot follow a sharp step
         wide = soften_false_steps(self.rgb, self.geometry, shown)
         if wide is not None:
-            model = replace(model, blur_map=wide)
-            data = codec.encode(model)
-            decoded = codec.decode(data)
-            shown = render(decoded, device=self.device)
+            data, decoded, shown = drawn(replace(model, blur_map=wide))
         return Evaluation(data, decoded, metrics.mse(self.rgb, shown)), shown
 
     def _candidates(self, l_step: int, ab_step: int) -> Candidates:

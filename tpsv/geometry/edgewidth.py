@@ -192,16 +192,13 @@ def gradient_magnitude(rgb: np.ndarray) -> np.ndarray:
     return grad
 
 
-def _readings(rgb: np.ndarray, regions, index: np.ndarray, vector: np.ndarray | None = None):
-    """The readings at points every pixel along the shared borders (module doc), or None without borders:
-    ``(f, a, b, ok, placed, sigma_eff, offset, false)``; ``false`` marks the points where ``vector`` (a
-    render of the vector image) steps across the border as the photo does not (:func:`false_steps`),
-    all False without it."""
-    rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
+def _points(regions, index: np.ndarray):
+    """Points every pixel along the shared borders, or None without borders: ``(f, a, b, normal,
+    region_at)``, ``normal`` a unit vector into region ``a`` and ``region_at(xy)`` the region of the
+    pixel under each point of ``xy``."""
     a, b, p0, p1 = _shared_edges(regions)
     if not len(a):
         return None
-    grad = gradient_magnitude(rgb)
     seg = p1 - p0
     length = np.hypot(*seg.T)
     n_pts = np.maximum(1, np.floor(length)).astype(np.int64)
@@ -220,6 +217,19 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray, vector: np.ndarray | 
     # the normal points into region a
     flip = region_at(f + normal) != a
     normal[flip] *= -1
+    return f, a, b, normal, region_at
+
+
+def _readings(rgb: np.ndarray, regions, index: np.ndarray):
+    """The readings at points every pixel along the shared borders (module doc), or None without borders:
+    ``(f, a, b, ok, placed, sigma_eff, offset)``."""
+    rgb = np.asarray(rgb)[..., :3]  # float32 is read in float64 where sampled (no float64 copy of the photo)
+    points = _points(regions, index)
+    if points is None:
+        return None
+    f, a, b, normal, region_at = points
+    H, W = index.shape
+    grad = gradient_magnitude(rgb)
     side_a, side_b = f + PROBE * normal, f - PROBE * normal
     ok = (region_at(side_a) == a) & (region_at(side_b) == b) & (region_at(f + normal) == a) & \
         (region_at(f - normal) == b)
@@ -248,14 +258,7 @@ def _readings(rgb: np.ndarray, regions, index: np.ndarray, vector: np.ndarray | 
     placed = ok.copy()  # both sides readable where they should be
     ok &= (contrast >= MIN_CONTRAST) & (g > 1e-6)
     sigma_eff = contrast / (np.sqrt(2.0 * np.pi) * np.maximum(g, 1e-6))
-    false = np.zeros(len(a), bool)
-    if vector is not None:
-        # read close to the border: a thin piece of a region (a finger of an object split in two) is
-        # where the step shows most
-        near_a, near_b = f + FALSE_PROBE * normal, f - FALSE_PROBE * normal
-        false = (region_at(near_a) == a) & (region_at(near_b) == b) & false_steps(
-            _bilinear(rgb, near_a) - _bilinear(rgb, near_b), _bilinear(vector, near_a) - _bilinear(vector, near_b))
-    return f, a, b, ok, placed, sigma_eff, offset, false
+    return f, a, b, ok, placed, sigma_eff, offset
 
 
 def false_steps(photo: np.ndarray, vector: np.ndarray) -> np.ndarray:
@@ -275,7 +278,7 @@ def false_steps(photo: np.ndarray, vector: np.ndarray) -> np.ndarray:
 
 def _pair_widths(readings, n_regions: int) -> np.ndarray:
     """:func:`edge_widths` from the :func:`_readings`: one width per pair of regions."""
-    f, a, b, ok, placed, sigma_eff, offset = readings[:7]
+    f, a, b, ok, placed, sigma_eff, offset = readings
     out = []
     key = a * (n_regions + 1) + b
     for k in np.unique(key):
@@ -434,7 +437,7 @@ def edge_width_map(rgb: np.ndarray, regions, index: np.ndarray, drawn=None, cell
     if r is None:
         return np.zeros((0, 3)), None
     pair = _pair_widths(r, len(regions))
-    f, a, b, ok, placed, sigma_eff, offset, _ = r
+    f, a, b, ok, placed, sigma_eff, offset = r
     n_reg = len(regions) + 1
     # each point's width; unreadable points take their pair's
     pair_keys = (pair[:, 0] * n_reg + pair[:, 1]).astype(np.int64)  # sorted, as edge_widths lists them
@@ -506,12 +509,18 @@ def soften_map(blur_map: BlurMap, rgb: np.ndarray, vector: np.ndarray, regions, 
     regions, index, drawn : as :func:`edge_width_map`
     """
     h, w = index.shape
-    r = _readings(rgb, regions if drawn is None else drawn, index, vector)
-    if r is None:
+    points = _points(regions if drawn is None else drawn, index)
+    if points is None:
         return None
-    f, a, b, false = r[0], r[1], r[2], r[7]
+    f, a, b, normal, region_at = points
+    # read close to the border: a thin piece of a region (a finger of an object split in two) is where
+    # the step shows most
+    near_a, near_b = f + FALSE_PROBE * normal, f - FALSE_PROBE * normal
+    rgb = np.asarray(rgb)[..., :3]
+    false = (region_at(near_a) == a) & (region_at(near_b) == b) & false_steps(
+        _bilinear(rgb, near_a) - _bilinear(rgb, near_b), _bilinear(vector, near_a) - _bilinear(vector, near_b))
     clear = np.array([bool(getattr(reg, "transparent", False)) for reg in regions] + [False])
-    false = false & ~clear[a] & ~clear[b]
+    false &= ~clear[a] & ~clear[b]
     if not false.any():
         return None
     cell = blur_map.cell
