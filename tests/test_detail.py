@@ -213,6 +213,42 @@ def test_a_tall_texture_puts_its_planes_side_by_side():
     assert back.shape == (7, 3, 3) and np.abs(back.astype(int) - texels).max() <= 2
 
 
+def test_grey_regions_are_those_without_chroma_in_their_residual():
+    from tpsv.encode.detail import GREY_PEAK, grey_regions
+
+    texels = np.full((6, 8, 3), 512, np.uint16)
+    texels[..., 0] = 300  # luma is not looked at
+    index = np.repeat(np.array([0, 0, 1, 1, 2, 2, 3, -1]), 6).reshape(8, 6).T.copy()
+    texels[:, 2:4, 1] = 513  # region 1: one level off everywhere: RMS 0.71 texel
+    texels[0, 4, 2] = 512 + GREY_PEAK + 1  # region 2: one texel past the peak
+    texels[:, 7, 1:] = 0  # no region's pixels
+    assert list(grey_regions(texels, index, 5)) == [True, True, False, True, False]  # region 4 has no pixel
+    texels[:, 2:4, 1:] = 513  # RMS 1 on both planes: still grey
+    assert grey_regions(texels, index, 5)[1]
+    texels[:, 2:4, 1] = 514
+    assert not grey_regions(texels, index, 5)[1]
+
+
+def test_a_grey_photo_comes_back_grey_at_every_scale(photo):
+    """A region whose residual has no chroma reads its texture's luma alone: the codec's chroma
+    error (and, in a small texture's one image of stacked planes, the luma plane's blocks reaching
+    into the Cb plane below it) tinted grey photos, R, G and B up to 55 levels apart at quality 20."""
+    rgb, labels = photo
+    grey = np.repeat(rgb.mean(axis=2, keepdims=True), 3, axis=2)
+    h, w = grey.shape[:2]
+    for q in (20, 75):
+        model = encode_quality(grey, labels, quality=q).model
+        assert list(model.detail.mode) == [DETAIL_LUMA, DETAIL_LUMA]
+        for scale in (1, 4):
+            assert np.ptp(render(model, width=scale * w, height=scale * h), axis=2).max() < 1e-5
+    # the colours' residual has chroma: full mode; and a grey region beside a coloured one keeps
+    # it too (the mix drawn along their border leaves chroma in the grey side's residual there)
+    assert list(encode_quality(rgb, labels, quality=75).model.detail.mode) == [DETAIL_FULL, DETAIL_FULL]
+    half = rgb.copy()
+    half[:, :26] = grey[:, :26]
+    assert list(encode_quality(half, labels, quality=75).model.detail.mode) == [DETAIL_FULL, DETAIL_FULL]
+
+
 def test_textures_up_to_a_megapixel_are_coded_carefully(monkeypatch):
     """The AVIF encoder's effort: the careful speed up to CAREFUL_TEXELS texels, the fast one
     above (a 12-megapixel texture at the careful speed would take a minute); the careful speed

@@ -14,9 +14,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..codec import detail as detail_codec
-from ..geometry.bands import for_bands
+from ..geometry.bands import for_bands, map_bands
 from ..geometry.patch import affine_frame
-from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_OFF, DETAIL_YCC, DETAIL_ZERO, Detail, Model
+from ..model import DETAIL_FULL, DETAIL_GAIN, DETAIL_LUMA, DETAIL_OFF, DETAIL_YCC, DETAIL_ZERO, Detail, Model
+
+#: A region whose residual's chroma stays within these (texel units, 1/510 of sRGB: half an 8-bit
+#: level) reads its texture's luma alone (``DETAIL_LUMA``): its root mean square over the region
+#: (Cb and Cr) and no texel further off than the peak (4 levels). The codec's own chroma error is
+#: larger than that at every quality (about 1 texel at quality 95, 2 at 75), and small textures
+#: are coded as one image of the three planes stacked (``codec.detail``), where AV1's blocks and
+#: loop filters reach across the seams: scikit-image's grey coins (384 x 303) came back with R, G
+#: and B up to 22 8-bit levels apart at quality 75 (55 at quality 20), worst in its top rows; now
+#: none, for the same bytes. A region's border pixels count: beside a coloured region the mix
+#: drawn along the border leaves chroma in the residual, and the region keeps full mode.
+GREY_RMS, GREY_PEAK = 1.0, 8
 
 
 def rest_frames(model: Model) -> np.ndarray:
@@ -86,27 +97,64 @@ def code_texels(texels: np.ndarray, quality: int) -> tuple[tuple, np.ndarray]:
     return payload, detail_codec.decode_texels(payload, w, h)
 
 
-def make_detail(model: Model, texels: np.ndarray, quality: int, coded: tuple | None = None) -> Detail:
-    """The detail layer of ``model`` with residual ``texels`` at ``quality`` (every region in full mode,
-    transparent regions off).
+def make_detail(model: Model, texels: np.ndarray, quality: int, coded: tuple | None = None,
+                grey: np.ndarray | None = None) -> Detail:
+    """The detail layer of ``model`` with residual ``texels`` at ``quality``: every region in full mode,
+    luma mode where ``grey`` (:func:`grey_regions`), transparent regions off.
 
     ``coded``: ``code_texels(texels, quality)`` when already computed.
     """
     payload, decoded = coded if coded is not None else code_texels(texels, quality)
     R = len(model.regions)
-    return Detail(payload=payload, texels=decoded, frame=rest_frames(model),
-                  mode=np.array([DETAIL_OFF if r.transparent else DETAIL_FULL for r in model.regions], np.uint8).reshape(R),
+    grey = np.zeros(R, bool) if grey is None else np.asarray(grey, bool)
+    mode = [DETAIL_OFF if r.transparent else DETAIL_LUMA if g else DETAIL_FULL for r, g in zip(model.regions, grey)]
+    return Detail(payload=payload, texels=decoded, frame=rest_frames(model), mode=np.array(mode, np.uint8).reshape(R),
                   quality=int(quality))
 
 
-def with_texels(rendered: np.ndarray, texels: np.ndarray) -> np.ndarray:
-    """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual."""
+def grey_regions(texels: np.ndarray, index: np.ndarray, n_regions: int) -> np.ndarray:
+    """Which regions' residual has no chroma worth coding (:data:`GREY_RMS`, :data:`GREY_PEAK`).
+
+    Parameters
+    ----------
+    texels : ndarray (H, W, 3) uint16
+        The residual texels (:func:`residual_texels`).
+    index : ndarray (H, W) int
+        Region of every pixel at scale 1, -1 for none.
+    n_regions : int
+
+    Returns
+    -------
+    ndarray (n_regions,) bool
+        True for a region with pixels whose chroma is within the bounds.
+    """
+    h, w = index.shape
+    slots = n_regions + 1  # the last for pixels of no region
+
+    def band(rows):
+        a, b = rows
+        c = texels[a:b, :, 1:].astype(np.int32) - DETAIL_ZERO
+        at = np.where(index[a:b] >= 0, index[a:b], n_regions).ravel()
+        return (np.bincount(at, minlength=slots), np.bincount(at, (c * c).sum(axis=2).ravel(), slots),
+                np.bincount(at, (np.abs(c).max(axis=2) > GREY_PEAK).ravel(), slots))
+
+    count, square, over = (sum(part[k] for part in map_bands(band, h, w))[:n_regions] for k in range(3))
+    return (count > 0) & (over == 0) & (square <= 2 * GREY_RMS**2 * count)
+
+
+def with_texels(rendered: np.ndarray, texels: np.ndarray, luma: np.ndarray | None = None) -> np.ndarray:
+    """What the renderer shows at scale 1 for a model at rest: ``rendered`` plus the texels' residual,
+    its luma alone where the (H, W) mask ``luma`` is set (a region in ``DETAIL_LUMA`` mode)."""
     h, w = rendered.shape[:2]
     out = np.empty(np.broadcast_shapes(rendered.shape, texels.shape), np.result_type(rendered, np.float32))
 
     def band(rows):  # (not texel_rgb: a band must not wait on the pool it runs on)
         a, b = rows
-        np.clip(rendered[a:b] + _residual_rgb(texels[a:b]).astype(np.float32), 0.0, 1.0, out=out[a:b])
+        t = texels[a:b]
+        if luma is not None:
+            t = t.copy()
+            t[luma[a:b], 1:] = DETAIL_ZERO  # Y alone is the same value on every channel
+        np.clip(rendered[a:b] + _residual_rgb(t).astype(np.float32), 0.0, 1.0, out=out[a:b])
 
     for_bands(band, h, w)
     return out

@@ -209,6 +209,8 @@ class Trials:
         self.params = params
         self.cands: dict = {}  # colour steps -> Candidates (their caches assume fixed steps)
         self.base = None
+        #: Regions (and their pixels) whose texture is read in luma mode (set with the base).
+        self.grey, self.grey_pixels = None, None
         self.done: dict = {}  # quality -> (data, model, mse)
 
     def vector_base(self):
@@ -234,6 +236,12 @@ class Trials:
             texels = detail_layer.residual_texels(self.rgb, shown)
             clear = np.array(clear + [False])
             texels[clear[self.geometry.index]] = DETAIL_ZERO  # nobody sees a transparent region's texture
+            # a region without chroma in its residual reads the luma alone: what the codec would
+            # make of its chroma is noise, and the chroma planes are coded flat there
+            self.grey = detail_layer.grey_regions(texels, self.geometry.index, len(clear) - 1) & ~clear[:-1]
+            if self.grey.any():
+                self.grey_pixels = np.append(self.grey, False)[self.geometry.index]
+                texels[self.grey_pixels, 1:] = DETAIL_ZERO
             self.base = (ev, shown, texels)
             give_back()  # before the AVIF encoder takes its own
         return self.base
@@ -282,8 +290,8 @@ class Trials:
             ev, shown, texels = self.vector_base()
             coded = detail_layer.code_texels(texels, quality)
             model = replace(_stamped(ev.model, quality),
-                            detail=detail_layer.make_detail(ev.model, texels, quality, coded))
-            err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1]))
+                            detail=detail_layer.make_detail(ev.model, texels, quality, coded, self.grey))
+            err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1], self.grey_pixels))
         else:
             v = vector_params(quality)
             h, w = self.rgb.shape[:2]
