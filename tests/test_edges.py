@@ -696,3 +696,64 @@ def test_a_small_disc_of_flat_colour_comes_back_round():
     assert np.abs(err).max() <= 0.1 and np.sqrt(np.mean(err ** 2)) <= 0.035
     noisy = rgb + np.random.default_rng(0).normal(0, 2 / 255, rgb.shape).astype(np.float32)
     assert not subpixel.BorderReading(labels, noisy.astype(np.float64)).near_clean[near].any()
+
+
+def ellipse_picture(size: int, cx: float, cy: float, a: float, b: float, turn: float, density: int = 32):
+    """An ellipse of colour A on B (semi-axes ``a``, ``b``, turned by ``turn`` radians), box-filtered."""
+    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
+    c, s = np.cos(turn), np.sin(turn)
+    u, v = (xx - cx) * c + (yy - cy) * s, -(xx - cx) * s + (yy - cy) * c
+    cover = ((u / a) ** 2 + (v / b) ** 2 < 1).reshape(size, density, size, density).mean(axis=(1, 3))
+    rgb = cover[..., None] * A + (1 - cover[..., None]) * B
+    return np.round(rgb * 255).astype(np.float32) / 255, (cover >= 0.5).astype(np.int32)
+
+
+@pytest.mark.parametrize("cx, cy, r", [(14.3, 13.6, 5.5), (14.0, 14.2, 3.2), (15.1, 13.3, 9.7)])
+def test_a_disc_is_drawn_on_its_circle(cx, cy, r):
+    """A loop between two regions whose contour points lie on an ellipse is drawn through points on it,
+    spread evenly (subpixel._on_ellipse): the smoothing and the simplification from the runs' ends had
+    drawn these discs up to 0.09 / 0.12 / 0.08 px inside their circles with 32 / 17 / 35 vertices."""
+    from tpsv.geometry import curves
+
+    rgb, labels = disc_picture(30, cx, cy, r)
+    regions, _ = build_regions(labels, rgb)
+    disc = next(reg for reg in regions if reg.label == 1)
+    drawn = curves.drawn_regions([disc], 30, 30, 0.01 / 8)[0].outline[0]
+    err = np.hypot(drawn[:, 0] - cx, drawn[:, 1] - cy) - r
+    # what is left is the file's 1/16 px grid (each vertex within 0.03 px of the circle)
+    assert np.abs(err).max() <= 0.045 and np.sqrt(np.mean(err ** 2)) <= 0.025
+    assert len(disc.outline[0]) <= 16
+
+
+def test_an_ellipse_is_drawn_on_its_curve_and_a_rounded_square_is_not_made_one():
+    from tpsv.geometry import curves
+
+    cx, cy, a, b, turn = 15.2, 14.7, 10.3, 5.8, 0.6
+    rgb, labels = ellipse_picture(30, cx, cy, a, b, turn)
+    regions, _ = build_regions(labels, rgb)
+    shape = next(reg for reg in regions if reg.label == 1)
+    drawn = curves.drawn_regions([shape], 30, 30, 0.01 / 8)[0].outline[0]
+    c, s = np.cos(turn), np.sin(turn)
+    u, v = (drawn[:, 0] - cx) * c + (drawn[:, 1] - cy) * s, -(drawn[:, 0] - cx) * s + (drawn[:, 1] - cy) * c
+    k = np.hypot(u / a, v / b)
+    off = np.hypot(u, v) * (1 - 1 / k)  # along the ray from the centre
+    # (before: -0.13..+0.03 px with 28 vertices; now 24, spread evenly in the eccentric angle)
+    assert np.abs(off).max() <= 0.05 and len(shape.outline[0]) <= 26
+    # a square with rounded corners: its points lie on no ellipse
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    square = np.stack([20 + 8 * np.sign(np.cos(t)) * np.abs(np.cos(t)) ** 0.3,
+                       20 + 8 * np.sign(np.sin(t)) * np.abs(np.sin(t)) ** 0.3], axis=1)
+    assert subpixel._on_ellipse(square) is None
+
+
+def test_the_ellipse_fit_finds_the_ellipse():
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    c, s = np.cos(0.4), np.sin(0.4)
+    local = np.stack([7.0 * np.cos(t), 3.0 * np.sin(t)], axis=1)
+    p = local @ np.array([[c, s], [-s, c]]) + [11.0, 9.0]
+    centre, shape = subpixel._ellipse(p)
+    assert np.allclose(centre, [11.0, 9.0], atol=1e-9)
+    assert np.allclose(np.sort(1 / np.sqrt(np.linalg.eigvalsh(shape))), [3.0, 7.0], atol=1e-9)
+    noisy = p + np.random.default_rng(1).normal(0, 0.05, p.shape)  # more scatter than a clean border has
+    assert subpixel._on_ellipse(noisy) is None
+    assert np.allclose(subpixel._on_ellipse(p + np.random.default_rng(1).normal(0, 0.005, p.shape)), p, atol=0.02)
