@@ -209,8 +209,7 @@ def magnify(ctx, path, output, factor, labels, fit_iterations, refine_iterations
         # the renderer's size limits, checked before the fit rather than at its final render
         output_size(SimpleNamespace(width=w, height=h), width=size[0], height=size[1])
         fmt.check_size(*size)
-        # a flat-colour graphic is drawn by fitted outlines (without a label map, of its own patches), a crisp
-        # one unrefined
+        # a flat-colour graphic is drawn by fitted outlines (without a label map, of its own patches), unrefined
         graphic, flat = picture_kind(rgb)
         lab = flat if lab is None else lab
         steps = refine_steps((w, h), size, refine_iterations, graphic)
