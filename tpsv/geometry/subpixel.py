@@ -1088,7 +1088,10 @@ def _ellipse_vertices(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inside the circle next to the run's end.
     """
     n = len(on)
-    centre, shape = _ellipse(on)
+    fit = _ellipse(on)
+    if fit is None:
+        return np.arange(n), on
+    centre, shape = fit
     inv, axes = np.linalg.eigh(shape)
     to_circle = (axes / np.sqrt(inv)).T  # the ellipse onto the unit circle
     from_circle = axes * np.sqrt(1 / inv)
