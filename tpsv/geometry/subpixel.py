@@ -1080,7 +1080,7 @@ CONIC_DRAWN = 0.01
 def _ellipse_vertices(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertices for a closed contour on an ellipse (:func:`_on_ellipse`): ``(indices, points)``, as few
     points on the ellipse, evenly spread in its eccentric angle (closer where it turns faster), as
-    keep the closed curve through them (no breaks: :func:`tpsv.geometry.curves.hermite`) within
+    keep the closed curve through them (no breaks; :func:`tpsv.geometry.curves.densify`) within
     :data:`CONIC_DRAWN` of it; each takes the place of the contour point nearest it.
 
     The runs' simplification from their ends cannot know that the closed curve has no break there:
@@ -1102,12 +1102,7 @@ def _ellipse_vertices(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     while 2 * count <= n:
         target = phase[0] + turn * 2 * np.pi * np.arange(count) / count
         v = centre + np.stack([np.cos(target), np.sin(target)], axis=1) @ from_circle.T
-        m0, m1 = curves.hermite(v, np.zeros(count, bool))
-        s = np.linspace(0.0, 1.0, 17)[:, None]
-        curve = np.concatenate([(2 * s**3 - 3 * s**2 + 1) * v[k] + (s**3 - 2 * s**2 + s) * m0[k]
-                                + (3 * s**2 - 2 * s**3) * v[(k + 1) % count] + (s**3 - s**2) * m1[k]
-                                for k in range(count)])
-        d = curve - centre
+        d = curves.densify(v, np.zeros(count, bool), CONIC_DRAWN / 10) - centre
         off = np.hypot(d[:, 0], d[:, 1]) * (1 - 1 / np.sqrt(np.einsum("ni,ij,nj->n", d, shape, d)))
         if np.abs(off).max() <= CONIC_DRAWN:
             near = np.argmin(np.abs(turn * (phase[None, :] - target[:, None])), axis=1)
