@@ -757,3 +757,20 @@ def test_the_ellipse_fit_finds_the_ellipse():
     noisy = p + np.random.default_rng(1).normal(0, 0.05, p.shape)  # more scatter than a clean border has
     assert subpixel._on_ellipse(noisy) is None
     assert np.allclose(subpixel._on_ellipse(p + np.random.default_rng(1).normal(0, 0.005, p.shape)), p, atol=0.02)
+
+
+def test_a_thin_ellipse_has_no_corner_at_its_tip():
+    """The corner test reads a small or thin ellipse's fast turn as a corner between straight runs: the
+    drawn curve passed 0.71 px off at the tip of an ellipse of axes 8 and 4 px, and 0.70 px off a disc
+    of radius 2.5. A loop on an ellipse is left to the ellipse."""
+    from tpsv.geometry import curves
+
+    for cx, cy, a, b, turn in [(15.2, 14.7, 8.0, 4.0, 0.3), (14.6, 15.3, 2.5, 2.5, 0.0)]:
+        rgb, labels = ellipse_picture(30, cx, cy, a, b, turn)
+        regions, _ = build_regions(labels, rgb)
+        shape = next(reg for reg in regions if reg.label == 1)
+        drawn = curves.drawn_regions([shape], 30, 30, 0.01 / 8)[0].outline[0]
+        c, s = np.cos(turn), np.sin(turn)
+        u, v = (drawn[:, 0] - cx) * c + (drawn[:, 1] - cy) * s, -(drawn[:, 0] - cx) * s + (drawn[:, 1] - cy) * c
+        off = np.hypot(u, v) * (1 - 1 / np.hypot(u / a, v / b))
+        assert np.abs(off).max() <= 0.08, (a, b, np.abs(off).max())

@@ -1007,7 +1007,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray],
 #: A border that closes on itself between two regions and no other (a disc, a ring's hole) whose
 #: contour points lie this near one ellipse (px: root mean square, and every point) is drawn through
 #: their projections onto it, when it has this many points and axes of at least a pixel.
-CONIC_RMS, CONIC_MAX, CONIC_POINTS = 0.03, 0.1, 12
+CONIC_RMS, CONIC_MAX, CONIC_POINTS = 0.04, 0.1, 12
 
 
 def _ellipse(p: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -1071,6 +1071,21 @@ def _on_ellipse(p: np.ndarray) -> np.ndarray | None:
     if np.sqrt((off ** 2).mean()) > CONIC_RMS or np.abs(off).max() > CONIC_MAX:
         return None
     return centre + d / k[:, None]
+
+
+def _ellipse_loops(polys: list[np.ndarray]) -> set:
+    """Indices of the contours that close on themselves between two regions and no other and lie on
+    an ellipse (:func:`_on_ellipse`), both sides of each."""
+    from ..codec import chains
+
+    part = chains.partners(_point_keys(polys))
+    out: set = set()
+    for i, p in enumerate(polys):
+        if i in out or not len(part[i]) or not (part[i][:, 0] == part[i][0, 0]).all() or part[i][0, 0] < 0:
+            continue
+        if _on_ellipse(p) is not None:
+            out |= {i, int(part[i][0, 0])}
+    return out
 
 
 #: How far (px) the curve through a loop's vertices on an ellipse may pass from the ellipse.
@@ -1237,7 +1252,8 @@ def fitted_outlines(reading: BorderReading, comp: np.ndarray, regions: list[int]
         if not changed:
             break
     flat, tols = _pin_crossings(flat, tols, comp)
-    flat, tols = _sharpen_corners(flat, tols, W, H, tolerance)
+    # a loop on an ellipse has no corner: a small or thin one turns fast enough for the corner test
+    flat, tols = _sharpen_corners(flat, tols, W, H, tolerance, skip=_ellipse_loops(flat))
     simple = _simplify_together(flat, tols, [_clean_points(reading, p, W, H) for p in flat])
     # where only the smoothed mask speaks, the border is known to half a pixel: a coarser grid there
     steps = [np.where(_tolerances(reading, q, tolerance, W, H) > 2 * tolerance, LOOSE_STEP, 1) for q in simple]
@@ -1358,7 +1374,7 @@ def _line(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H: int,
-                     tolerance: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                     tolerance: float, skip: set | frozenset = frozenset()) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Corners the contours rounded off, put back where the straight borders meet.
 
     The field is a distance to one straight border, which a pixel at a corner
@@ -1367,7 +1383,8 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
     two runs that are straight (within :data:`CORNER_STRAIGHT` px, over one of
     the stretches of :data:`CORNER_RUNS`), shared with
     one other region and read from the colours, the points in between are
-    replaced by the crossing of the two runs' lines, in both regions' contours.
+    replaced by the crossing of the two runs' lines, in both regions' contours. Contours in
+    ``skip`` are left as they are.
     """
     from ..codec import chains
 
@@ -1393,7 +1410,7 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
 
     for i, p in enumerate(polys):
         n = len(p)
-        if n < 12:
+        if n < 12 or i in skip:
             continue
         s = _arc(p)
         total = s[-1]
@@ -1456,6 +1473,8 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
             claim(i, zone, int(twin[0]), corner)
     # the ends of bars one to four pixels wide: their corners have no straight run on the short side
     for i, p in enumerate(polys):
+        if i in skip:
+            continue
         for zone, corners in _caps(p, tols[i], tolerance):
             twin = part[i][zone, 0]  # the edges from the zone's points on: the cap and the runs' last steps
             if (twin < 0).any() or (twin != twin[0]).any():
