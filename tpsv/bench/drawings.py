@@ -7,11 +7,14 @@ Three pictures, each with its exact magnified picture:
 * ``grid``: squares of 5 px between gutters 1 px wide, on pixel edges
   (50 x 50);
 * ``logo``: a ring, a rectangle and a line 2 px wide at 36 degrees over them,
-  anti-aliased (64 x 48).
+  anti-aliased (64 x 48);
+* ``dots``: discs of radii 2.5, 4 and 6 px and an elliptic ring, anti-aliased
+  (64 x 48): small round shapes, which a curve through a few vertices must
+  keep round.
 
 The first two have no anti-aliasing: their exact picture at scale ``k`` is the
-nearest-neighbour upscale. The logo is the area average (box filter) of its
-scene over each pixel, sampled on :data:`DENSITY` x :data:`DENSITY` points per
+nearest-neighbour upscale. An anti-aliased one (:data:`ANTI_ALIASED`) is the
+area average (box filter) of its scene over each pixel, sampled on :data:`DENSITY` x :data:`DENSITY` points per
 scale-1 pixel, and its scale-``k`` picture the average of the same samples
 over each output pixel (``k`` divides :data:`DENSITY`), so that the
 scale-``k`` picture area-downscaled by ``k`` is the scale-1 picture.
@@ -24,7 +27,9 @@ import numpy as np
 #: Samples per scale-1 pixel and axis of the anti-aliased drawing.
 DENSITY = 32
 #: The drawings, in the table's order.
-NAMES = ("frames", "grid", "logo")
+NAMES = ("frames", "grid", "logo", "dots")
+#: The drawings drawn anti-aliased from a scene (the others on pixel edges).
+ANTI_ALIASED = ("logo", "dots")
 
 
 def _frames() -> tuple[np.ndarray, np.ndarray]:
@@ -68,13 +73,26 @@ def _logo_scene(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def _logo(scale: int) -> np.ndarray:
-    """The anti-aliased logo at ``scale`` (float in [0, 1]), averaged from the samples."""
-    h, w = 48, 64
+def _dots_scene(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """sRGB (0-255) of the dots' scene at points ``(x, y)`` (scale-1 pixels)."""
+    out = np.empty(x.shape + (3,))
+    out[:] = (250, 248, 240)
+    for cx, cy, r, colour in ((9.3, 9.6, 2.5, (30, 40, 160)), (23.7, 11.2, 4.0, (210, 40, 60)),
+                              (45.4, 12.8, 6.0, (20, 150, 90))):
+        out[np.hypot(x - cx, y - cy) < r] = colour
+    # an elliptic ring, turned by 0.3 rad: semi-axes 13 x 8 outside, 8 x 4 inside
+    c, s = np.cos(0.3), np.sin(0.3)
+    u, v = (x - 32.2) * c + (y - 33.1) * s, -(x - 32.2) * s + (y - 33.1) * c
+    out[((u / 13.0) ** 2 + (v / 8.0) ** 2 < 1) & ((u / 8.0) ** 2 + (v / 4.0) ** 2 >= 1)] = (240, 170, 30)
+    return out
+
+
+def _anti_aliased(scene, scale: int, w: int = 64, h: int = 48) -> np.ndarray:
+    """A scene at ``scale`` (float in [0, 1]), each pixel the average of its samples."""
     per = DENSITY // scale
     ys = (np.arange(h * DENSITY) + 0.5) / DENSITY
     xs = (np.arange(w * DENSITY) + 0.5) / DENSITY
-    samples = _logo_scene(*np.meshgrid(xs, ys))
+    samples = scene(*np.meshgrid(xs, ys))
     return samples.reshape(h * scale, per, w * scale, per, 3).mean(axis=(1, 3)) / 255.0
 
 
@@ -83,8 +101,8 @@ def drawing(name: str, scale: int = 1) -> np.ndarray:
     (H, W, 3) float32 in [0, 1]; at scale 1 quantised to 8 bits, as a PNG holds it."""
     if DENSITY % int(scale):
         raise ValueError(f"scale {scale} does not divide {DENSITY}")
-    if name == "logo":
-        img = _logo(int(scale))
+    if name in ANTI_ALIASED:
+        img = _anti_aliased(_logo_scene if name == "logo" else _dots_scene, int(scale))
     else:
         labels, colours = _frames() if name == "frames" else _grid()
         big = np.repeat(np.repeat(labels, scale, 0), scale, 1)
