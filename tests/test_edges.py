@@ -774,3 +774,34 @@ def test_a_thin_ellipse_has_no_corner_at_its_tip():
         u, v = (drawn[:, 0] - cx) * c + (drawn[:, 1] - cy) * s, -(drawn[:, 0] - cx) * s + (drawn[:, 1] - cy) * c
         off = np.hypot(u, v) * (1 - 1 / np.hypot(u / a, v / b))
         assert np.abs(off).max() <= 0.08, (a, b, np.abs(off).max())
+
+
+def rounded_rectangle_picture(size: int, box, radius: float, density: int = 32):
+    """A rectangle ``box`` = (x0, y0, x1, y1) with corners rounded by ``radius``, colour A on B, box-filtered."""
+    x0, y0, x1, y1 = box
+    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
+    inside = np.hypot(xx - np.clip(xx, x0 + radius, x1 - radius), yy - np.clip(yy, y0 + radius, y1 - radius)) <= radius
+    cover = inside.reshape(size, density, size, density).mean(axis=(1, 3))
+    rgb = cover[..., None] * A + (1 - cover[..., None]) * B
+    return np.round(rgb * 255).astype(np.float32) / 255, (cover >= 0.5).astype(np.int32)
+
+
+def test_a_rounded_corner_stays_round_and_a_sharp_one_sharp():
+    """The corner test put a sharp corner in place of a rounded rectangle's corner of radius 3 px
+    (1.26-1.33 px outside its arc); the reading rounds a sharp right angle by at most 0.92 px."""
+    from tpsv.geometry import curves
+
+    box = (6.3, 7.6, 25.4, 24.2)
+    for radius, limit in ((3.0, 0.15), (0.0, 0.15)):
+        rgb, labels = rounded_rectangle_picture(32, box, radius)
+        regions, _ = build_regions(labels, rgb)
+        shape = next(reg for reg in regions if reg.label == 1)
+        drawn = curves.drawn_regions([shape], 32, 32, 0.01 / 8)[0].outline[0]
+        # distance of the drawn curve to the true outline, near the corners
+        x0, y0, x1, y1 = box
+        cx = np.clip(drawn[:, 0], x0 + radius, x1 - radius)
+        cy = np.clip(drawn[:, 1], y0 + radius, y1 - radius)
+        inner = (drawn[:, 0] > x0 + radius) & (drawn[:, 0] < x1 - radius) & (drawn[:, 1] > y0 + radius) & (drawn[:, 1] < y1 - radius)
+        err = np.where(inner, np.minimum.reduce([drawn[:, 0] - x0, x1 - drawn[:, 0], drawn[:, 1] - y0, y1 - drawn[:, 1]]),
+                       np.abs(np.hypot(drawn[:, 0] - cx, drawn[:, 1] - cy) - radius))
+        assert np.abs(err).max() <= limit, (radius, np.abs(err).max())

@@ -94,6 +94,11 @@ CORNER_RUNS = ((2.0, 6.0), (0.7, 3.5))
 CORNER_STRAIGHT = 0.08
 #: A point this close (px) to a corner's line is on it, not on the rounding.
 CORNER_ON_LINE = 0.04
+#: Farthest (px) a corner's sides may cross from the contour's sharpest point for a corner to be put
+#: back there; where the sides cross at 70-110 degrees, :data:`CORNER_DEPTH_RIGHT`. The reading rounds
+#: a sharp right angle by at most 0.92 px on the bench's shapes; a rounded rectangle's corner of radius
+#: 3 px lies 1.26-1.33 px inside, and was squared (its texture drew a light blob there at 8x).
+CORNER_DEPTH, CORNER_DEPTH_RIGHT = 1.5, 1.1
 #: Outline vertices turning less than this (degrees) slide along the border onto the grid point nearest to it.
 SNAP_TURN = 30.0
 #: Cost of sliding a vertex along its border, relative to moving it across.
@@ -1454,7 +1459,10 @@ def _sharpen_corners(polys: list[np.ndarray], tols: list[np.ndarray], W: int, H:
             # the crossing: cb + ub x = ca + ua y
             x = np.linalg.solve(np.array([ub, -ua]).T, ca - cb)[0]
             corner = _on_lattice(cb + ub * x, [(p[side_b], 0.0), (p[side_a], 0.0)])
-            if np.hypot(*(corner - p[c])) > 1.5 or not (0 < corner[0] < W and 0 < corner[1] < H):
+            # a rounded corner (a button's, radius 2.5 px and up) lies farther inside than the reading
+            # rounds a sharp one (at most 0.92 px at right angles on the bench's shapes)
+            depth = CORNER_DEPTH_RIGHT if abs(float(ub @ ua)) < np.cos(np.radians(70.0)) else CORNER_DEPTH
+            if np.hypot(*(corner - p[c])) > depth or not (0 < corner[0] < W and 0 < corner[1] < H):
                 continue
             # the points the rounding moved off the two lines
             q = p[win]
