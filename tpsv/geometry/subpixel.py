@@ -976,7 +976,7 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray],
     for i, p in enumerate(polys):
         # a loop between two regions lying on an ellipse: points on it, vertices spread evenly
         n = sizes[i]
-        if not n or done[i].any() or not (part[i][:, 0] == part[i][0, 0]).all() or part[i][0, 0] < 0:
+        if not n or done[i].any() or _loop_partner(part[i]) < 0:
             continue
         on = _on_ellipse(p)
         if on is None:
@@ -1033,7 +1033,7 @@ def _ellipse(p: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     r = s1 + s2 @ t
     r = np.stack([r[2] / 2, -r[1], r[0] / 2])  # the constraint 4ac - b^2 = 1 folded in
-    vals, vecs = np.linalg.eig(r)
+    _, vecs = np.linalg.eig(r)
     vecs = np.real(vecs)
     ok = 4 * vecs[0] * vecs[2] - vecs[1] ** 2 > 0
     if not ok.any():
@@ -1086,11 +1086,17 @@ def _ellipse_loops(polys: list[np.ndarray]) -> set:
     part = chains.partners(_point_keys(polys))
     out: set = set()
     for i, p in enumerate(polys):
-        if i in out or not len(part[i]) or not (part[i][:, 0] == part[i][0, 0]).all() or part[i][0, 0] < 0:
-            continue
-        if _on_ellipse(p) is not None:
-            out |= {i, int(part[i][0, 0])}
+        q = _loop_partner(part[i])
+        if i not in out and q >= 0 and _on_ellipse(p) is not None:
+            out |= {i, q}
     return out
+
+
+def _loop_partner(edges: np.ndarray) -> int:
+    """The one contour a contour shares all its edges with (``chains.partners`` of it), or -1."""
+    if not len(edges) or edges[0, 0] < 0 or (edges[:, 0] != edges[0, 0]).any():
+        return -1
+    return int(edges[0, 0])
 
 
 #: How far (px) the curve through a loop's vertices on an ellipse may pass from the ellipse.
