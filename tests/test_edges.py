@@ -668,12 +668,18 @@ def test_every_fitted_hole_holds_another_region(n, seed):
     assert len(codec.decode(codec.encode(model)).regions) == len(g.regions)
 
 
-def disc_picture(size: int, cx: float, cy: float, r: float, density: int = 32):
-    """A disc of colour A on B, box-filtered pixels; its label map (coverage at least half)."""
+def _shape_picture(size: int, inside, density: int = 32):
+    """A shape of colour A on B, ``inside(x, y)`` sampled ``density`` x ``density`` times a pixel and
+    box-filtered, as 8-bit colours; its label map (coverage at least half)."""
     yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
-    cover = (np.hypot(xx - cx, yy - cy) < r).reshape(size, density, size, density).mean(axis=(1, 3))
+    cover = inside(xx, yy).reshape(size, density, size, density).mean(axis=(1, 3))
     rgb = cover[..., None] * A + (1 - cover[..., None]) * B
     return np.round(rgb * 255).astype(np.float32) / 255, (cover >= 0.5).astype(np.int32)
+
+
+def disc_picture(size: int, cx: float, cy: float, r: float, density: int = 32):
+    """A disc of colour A on B, box-filtered pixels; its label map (coverage at least half)."""
+    return _shape_picture(size, lambda x, y: np.hypot(x - cx, y - cy) < r, density)
 
 
 def test_a_small_disc_of_flat_colour_comes_back_round():
@@ -700,12 +706,30 @@ def test_a_small_disc_of_flat_colour_comes_back_round():
 
 def ellipse_picture(size: int, cx: float, cy: float, a: float, b: float, turn: float, density: int = 32):
     """An ellipse of colour A on B (semi-axes ``a``, ``b``, turned by ``turn`` radians), box-filtered."""
-    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
+    def inside(x, y):
+        u, v = _turned(x, y, cx, cy, turn)
+        return (u / a) ** 2 + (v / b) ** 2 < 1
+
+    return _shape_picture(size, inside, density)
+
+
+def _turned(x, y, cx: float, cy: float, turn: float):
+    """Coordinates of points ``(x, y)`` along and across axes through ``(cx, cy)`` turned by ``turn`` radians."""
     c, s = np.cos(turn), np.sin(turn)
-    u, v = (xx - cx) * c + (yy - cy) * s, -(xx - cx) * s + (yy - cy) * c
-    cover = ((u / a) ** 2 + (v / b) ** 2 < 1).reshape(size, density, size, density).mean(axis=(1, 3))
-    rgb = cover[..., None] * A + (1 - cover[..., None]) * B
-    return np.round(rgb * 255).astype(np.float32) / 255, (cover >= 0.5).astype(np.int32)
+    return (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c
+
+
+def _drawn_off_ellipse(cx: float, cy: float, a: float, b: float, turn: float):
+    """The ellipse's picture (30 x 30) outlined: how far its drawn curve passes from the ellipse (px,
+    along the rays from its centre), and the outline's vertex count."""
+    from tpsv.geometry import curves
+
+    rgb, labels = ellipse_picture(30, cx, cy, a, b, turn)
+    regions, _ = build_regions(labels, rgb)
+    shape = next(reg for reg in regions if reg.label == 1)
+    drawn = curves.drawn_regions([shape], 30, 30, 0.01 / 8)[0].outline[0]
+    u, v = _turned(drawn[:, 0], drawn[:, 1], cx, cy, turn)
+    return np.hypot(u, v) * (1 - 1 / np.hypot(u / a, v / b)), len(shape.outline[0])
 
 
 @pytest.mark.parametrize("cx, cy, r", [(14.3, 13.6, 5.5), (14.0, 14.2, 3.2), (15.1, 13.3, 9.7)])
@@ -726,19 +750,9 @@ def test_a_disc_is_drawn_on_its_circle(cx, cy, r):
 
 
 def test_an_ellipse_is_drawn_on_its_curve_and_a_rounded_square_is_not_made_one():
-    from tpsv.geometry import curves
-
-    cx, cy, a, b, turn = 15.2, 14.7, 10.3, 5.8, 0.6
-    rgb, labels = ellipse_picture(30, cx, cy, a, b, turn)
-    regions, _ = build_regions(labels, rgb)
-    shape = next(reg for reg in regions if reg.label == 1)
-    drawn = curves.drawn_regions([shape], 30, 30, 0.01 / 8)[0].outline[0]
-    c, s = np.cos(turn), np.sin(turn)
-    u, v = (drawn[:, 0] - cx) * c + (drawn[:, 1] - cy) * s, -(drawn[:, 0] - cx) * s + (drawn[:, 1] - cy) * c
-    k = np.hypot(u / a, v / b)
-    off = np.hypot(u, v) * (1 - 1 / k)  # along the ray from the centre
+    off, vertices = _drawn_off_ellipse(15.2, 14.7, 10.3, 5.8, 0.6)
     # (before: -0.13..+0.03 px with 28 vertices; now 24, spread evenly in the eccentric angle)
-    assert np.abs(off).max() <= 0.05 and len(shape.outline[0]) <= 26
+    assert np.abs(off).max() <= 0.05 and vertices <= 26
     # a square with rounded corners: its points lie on no ellipse
     t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
     square = np.stack([20 + 8 * np.sign(np.cos(t)) * np.abs(np.cos(t)) ** 0.3,
@@ -756,34 +770,23 @@ def test_the_ellipse_fit_finds_the_ellipse():
     assert np.allclose(np.sort(1 / np.sqrt(np.linalg.eigvalsh(shape))), [3.0, 7.0], atol=1e-9)
     noisy = p + np.random.default_rng(1).normal(0, 0.05, p.shape)  # more scatter than a clean border has
     assert subpixel._on_ellipse(noisy) is None
-    assert np.allclose(subpixel._on_ellipse(p + np.random.default_rng(1).normal(0, 0.005, p.shape)), p, atol=0.02)
+    assert np.allclose(subpixel._on_ellipse(p + np.random.default_rng(1).normal(0, 0.005, p.shape))[0], p, atol=0.02)
 
 
 def test_a_thin_ellipse_has_no_corner_at_its_tip():
     """The corner test reads a small or thin ellipse's fast turn as a corner between straight runs: the
     drawn curve passed 0.71 px off at the tip of an ellipse of axes 8 and 4 px, and 0.70 px off a disc
     of radius 2.5. A loop on an ellipse is left to the ellipse."""
-    from tpsv.geometry import curves
-
     for cx, cy, a, b, turn in [(15.2, 14.7, 8.0, 4.0, 0.3), (14.6, 15.3, 2.5, 2.5, 0.0)]:
-        rgb, labels = ellipse_picture(30, cx, cy, a, b, turn)
-        regions, _ = build_regions(labels, rgb)
-        shape = next(reg for reg in regions if reg.label == 1)
-        drawn = curves.drawn_regions([shape], 30, 30, 0.01 / 8)[0].outline[0]
-        c, s = np.cos(turn), np.sin(turn)
-        u, v = (drawn[:, 0] - cx) * c + (drawn[:, 1] - cy) * s, -(drawn[:, 0] - cx) * s + (drawn[:, 1] - cy) * c
-        off = np.hypot(u, v) * (1 - 1 / np.hypot(u / a, v / b))
+        off, _ = _drawn_off_ellipse(cx, cy, a, b, turn)
         assert np.abs(off).max() <= 0.08, (a, b, np.abs(off).max())
 
 
 def rounded_rectangle_picture(size: int, box, radius: float, density: int = 32):
     """A rectangle ``box`` = (x0, y0, x1, y1) with corners rounded by ``radius``, colour A on B, box-filtered."""
     x0, y0, x1, y1 = box
-    yy, xx = (np.mgrid[0:size * density, 0:size * density] + 0.5) / density
-    inside = np.hypot(xx - np.clip(xx, x0 + radius, x1 - radius), yy - np.clip(yy, y0 + radius, y1 - radius)) <= radius
-    cover = inside.reshape(size, density, size, density).mean(axis=(1, 3))
-    rgb = cover[..., None] * A + (1 - cover[..., None]) * B
-    return np.round(rgb * 255).astype(np.float32) / 255, (cover >= 0.5).astype(np.int32)
+    return _shape_picture(size, lambda x, y: np.hypot(x - np.clip(x, x0 + radius, x1 - radius),
+                                                      y - np.clip(y, y0 + radius, y1 - radius)) <= radius, density)
 
 
 def test_a_rounded_corner_stays_round_and_a_sharp_one_sharp():

@@ -1,6 +1,6 @@
 """Flat-colour drawings of the bench's graphics table: what a logo, a diagram or pixel art is made of.
 
-Three pictures, each with its exact magnified picture:
+Four pictures, each with its exact magnified picture:
 
 * ``frames``: nested square frames of flat colours crossed by a bar 2 px
   wide, on pixel edges (48 x 48);
@@ -28,8 +28,6 @@ import numpy as np
 DENSITY = 32
 #: The drawings, in the table's order.
 NAMES = ("frames", "grid", "logo", "dots")
-#: The drawings drawn anti-aliased from a scene (the others on pixel edges).
-ANTI_ALIASED = ("logo", "dots")
 
 
 def _frames() -> tuple[np.ndarray, np.ndarray]:
@@ -87,6 +85,11 @@ def _dots_scene(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out
 
 
+#: The drawings drawn anti-aliased from a scene (the others on pixel edges), and their scenes.
+SCENES = {"logo": _logo_scene, "dots": _dots_scene}
+ANTI_ALIASED = tuple(SCENES)
+
+
 def _anti_aliased(scene, scale: int, w: int = 64, h: int = 48) -> np.ndarray:
     """A scene at ``scale`` (float in [0, 1]), each pixel the average of its samples."""
     per = DENSITY // scale
@@ -102,7 +105,7 @@ def drawing(name: str, scale: int = 1) -> np.ndarray:
     if DENSITY % int(scale):
         raise ValueError(f"scale {scale} does not divide {DENSITY}")
     if name in ANTI_ALIASED:
-        img = _anti_aliased(_logo_scene if name == "logo" else _dots_scene, int(scale))
+        img = _anti_aliased(SCENES[name], int(scale))
     else:
         labels, colours = _frames() if name == "frames" else _grid()
         big = np.repeat(np.repeat(labels, scale, 0), scale, 1)

@@ -146,11 +146,10 @@ def grey_regions(texels: np.ndarray, index: np.ndarray, n_regions: int) -> np.nd
 
     def squares(rows):
         a, b = rows
-        at = index[a:b]
-        inside = keep[at]
+        inside = keep[index[a:b]]
+        at = index[a:b][inside]
         c = texels[a:b][inside][:, 1:].astype(np.int32) - DETAIL_ZERO
-        return (np.bincount(at[inside], minlength=slots),
-                np.bincount(at[inside], (c * c).sum(axis=1), minlength=slots))
+        return np.bincount(at, minlength=slots), np.bincount(at, (c * c).sum(axis=1), minlength=slots)
 
     parts = map_bands(squares, h, w)
     count, square = (sum(part[k] for part in parts)[:n_regions] for k in range(2))

@@ -978,10 +978,11 @@ def _simplify_together(polys: list[np.ndarray], tols: list[np.ndarray],
         n = sizes[i]
         if not n or done[i].any() or _loop_partner(part[i]) < 0:
             continue
-        on = _on_ellipse(p)
-        if on is None:
+        found = _on_ellipse(p)
+        if found is None:
             continue
-        kept, at = _ellipse_vertices(on)
+        on, fit = found
+        kept, at = _ellipse_vertices(on, fit)
         on[kept] = at
         q, j = (int(v) for v in part[i][-1])
         twin = (j + n - np.arange(n + 1)) % sizes[q]  # our vertex v (v = n is vertex 0) is q's vertex twin[v]
@@ -1054,9 +1055,10 @@ def _ellipse(p: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return m + s * centre, shape / (s * s)
 
 
-def _on_ellipse(p: np.ndarray) -> np.ndarray | None:
+def _on_ellipse(p: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
     """A closed contour's points moved onto the ellipse they lie near (:data:`CONIC_RMS`,
-    :data:`CONIC_MAX`), each along the ray from its centre; None when they do not.
+    :data:`CONIC_MAX`), each along the ray from its centre, and the ellipse (:func:`_ellipse`);
+    None when they do not.
 
     Smoothing a run's points by a local cubic and keeping the points a curve needs drew small
     circles up to 0.13 px inside their contour points (a disc of radius 4 px, its points within
@@ -1075,7 +1077,7 @@ def _on_ellipse(p: np.ndarray) -> np.ndarray | None:
     off = np.hypot(d[:, 0], d[:, 1]) * (1 - 1 / k)  # along the ray from the centre
     if np.sqrt((off ** 2).mean()) > CONIC_RMS or np.abs(off).max() > CONIC_MAX:
         return None
-    return centre + d / k[:, None]
+    return centre + d / k[:, None], fit
 
 
 def _ellipse_loops(polys: list[np.ndarray]) -> set:
@@ -1103,8 +1105,8 @@ def _loop_partner(edges: np.ndarray) -> int:
 CONIC_DRAWN = 0.01
 
 
-def _ellipse_vertices(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices for a closed contour on an ellipse (:func:`_on_ellipse`): ``(indices, points)``, as few
+def _ellipse_vertices(on: np.ndarray, fit: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices for a closed contour on the ellipse ``fit`` (:func:`_on_ellipse`): ``(indices, points)``, as few
     points on the ellipse, evenly spread in its eccentric angle (closer where it turns faster), as
     keep the closed curve through them (no breaks; :func:`tpsv.geometry.curves.densify`) within
     :data:`CONIC_DRAWN` of it; each takes the place of the contour point nearest it.
@@ -1114,9 +1116,6 @@ def _ellipse_vertices(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inside the circle next to the run's end.
     """
     n = len(on)
-    fit = _ellipse(on)
-    if fit is None:
-        return np.arange(n), on
     centre, shape = fit
     inv, axes = np.linalg.eigh(shape)
     to_circle = (axes / np.sqrt(inv)).T  # the ellipse onto the unit circle
