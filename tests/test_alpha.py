@@ -49,11 +49,23 @@ def test_the_transparent_part_becomes_transparent_regions(encoded):
     clear = [r for r in model.regions if r.transparent]
     assert len(clear) == 1 and len(clear) < len(model.regions)
     assert (res.model.regions[model.regions.index(clear[0])].transparent)
-    # flags: detail and alpha; the transparent region carries no texture
+    # flags: alpha; flat colours need no texture (it would not pay for its bytes)
     version, flags = np.frombuffer(res.data[8:12], "<u2")
     assert version == layout.VERSION
-    assert flags == layout.FLAG_DETAIL | layout.FLAG_ALPHA | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP
-    assert model.detail.mode[model.regions.index(clear[0])] == 0
+    assert flags == layout.FLAG_ALPHA | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP
+    assert model.detail is None
+
+
+def test_a_textured_rgba_picture_keeps_its_texture_but_not_on_the_transparent_part():
+    rgb, a = logo()
+    grain = np.random.default_rng(0).normal(0.0, 0.04, rgb.shape).astype(np.float32)
+    res = encode_quality(np.clip(rgb + grain, 0, 1), None, quality=75, alpha=a)
+    model = codec.decode(res.data)
+    version, flags = np.frombuffer(res.data[8:12], "<u2")
+    assert flags & layout.FLAG_DETAIL and flags & layout.FLAG_ALPHA
+    clear = [i for i, r in enumerate(model.regions) if r.transparent]
+    assert len(clear) == 1 and model.detail.mode[clear[0]] == 0
+    assert (model.detail.mode[[i for i in range(len(model.regions)) if i != clear[0]]] != 0).all()
 
 
 @pytest.mark.parametrize("scale", [1, 8])

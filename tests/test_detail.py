@@ -105,6 +105,43 @@ def test_the_top_qualities_make_their_features_once(photo, monkeypatch):
     assert len(made) == 1
 
 
+def test_detail_pays_rule():
+    # 1 dB per doubling of the file: +1 dB for twice the bytes is the edge
+    assert rate.detail_pays(1e-3, 1e-3 / 10 ** 0.1, 1000, 2000)
+    assert not rate.detail_pays(1e-3, 1e-3 / 10 ** 0.099, 1000, 2000)
+    assert not rate.detail_pays(1e-3, 1.01e-3, 1000, 1001)  # a texture that makes the picture worse
+    assert not rate.detail_pays(0.0, 0.0, 1000, 1300)  # the base alone is exact
+    assert rate.detail_pays(1e-3, 1e-5, 1000, 8000)  # 20 dB for three doublings
+
+
+def test_a_flat_drawing_gets_no_texture_a_textured_one_keeps_it():
+    """A texture that holds nothing the picture needs costs an AVIF file (some 300 bytes) for no
+    gain: flat colour patches come back as the vector base alone, at every quality, with the
+    quality recorded; the photo beside them keeps its texture."""
+    from tpsv.bench.drawings import drawing
+
+    rgb = drawing("frames")
+    runs = [encode_quality(rgb, None, quality=q) for q in (20, 75, 95)]
+    for q, r in zip((20, 75, 95), runs):
+        m = codec.decode(r.data)
+        assert m.detail is None and m.params.extra["quality"] == q
+        assert r.psnr == pytest.approx(psnr(rgb, render(m)), abs=0.02)
+    assert len({len(r.data) for r in runs}) == 1
+    assert psnr(rgb, render(codec.decode(runs[0].data))) > 50.0
+
+
+def test_bytes_and_psnr_rise_with_quality_where_the_texture_starts_to_pay():
+    """dots: the texture is dropped at low qualities (it gains nothing there) and kept above;
+    bytes and PSNR still rise with the quality across the switch."""
+    from tpsv.bench.drawings import drawing
+
+    rgb = drawing("dots")
+    runs = [encode_quality(rgb, None, quality=q) for q in (20, 50, 75)]
+    assert [codec.decode(r.data).detail is None for r in runs] == [True, False, False]
+    sizes, quality = [len(r.data) for r in runs], [r.psnr for r in runs]
+    assert sizes == sorted(sizes) and quality == sorted(quality)
+
+
 def test_the_detail_layer_is_what_reaches_high_quality(ladder):
     assert ladder[(95, True)].psnr > 38.0
     assert ladder[(95, True)].psnr > ladder[(95, False)].psnr + 3.0
