@@ -390,7 +390,7 @@ def test_section_sizes_break_down_the_file():
 def test_file_starts_with_magic_and_version():
     data = codec.encode(tiny_model())
     assert data[:8] == codec.MAGIC == b"TPSV\r\n\x1a\n"
-    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 8
+    assert struct.unpack_from("<H", data, 8)[0] == codec.VERSION == 9
 
 
 def test_compact_features():
@@ -545,10 +545,10 @@ def test_text_mode_mangling_is_named():
     reject(data[:4] + data[4:8].replace(b"\n", b"\r\n") + data[8:], "text mode")
 
 
-@pytest.mark.parametrize("version", [9, 10, 65535])
+@pytest.mark.parametrize("version", [10, 11, 65535])
 def test_future_version_rejected(version):
     data = patch_header(codec.encode(tiny_model()), version=version)
-    reject(data, f"unsupported format version {version} (this tpsv reads up to 8)")
+    reject(data, f"unsupported format version {version} (this tpsv reads up to 9)")
     # Even a short file of a future version gets the version message.
     reject(data[:12], f"unsupported format version {version}")
 
@@ -867,7 +867,7 @@ def test_limits_are_exported():
 
 CORPUS = sorted((Path(__file__).parent / "fuzzing" / "corpus").glob("*.tpsv"))
 VERSION_1 = sorted((Path(__file__).parent / "data" / "v1").glob("*.tpsv"))
-OLD_VERSIONS = VERSION_1 + [p for v in ("v2", "v3", "v4", "v5", "v6", "v7")
+OLD_VERSIONS = VERSION_1 + [p for v in ("v2", "v3", "v4", "v5", "v6", "v7", "v8")
                              for p in sorted((Path(__file__).parent / "data" / v).glob("*.tpsv"))]
 
 
@@ -880,9 +880,10 @@ def test_reencoding_a_sample_file_gives_its_bytes(path):
 
 @pytest.mark.parametrize("path", OLD_VERSIONS, ids=lambda p: f"{p.parent.name}-{p.stem}")
 def test_old_version_files_are_read_and_written_back_as_the_current_version(path):
-    """docs/FORMAT.md, Versions: a version-1 to -7 file decodes as it always did (an outline
-    crossing itself mended; no blur map before version 7; the detail image in one piece);
-    encoding writes the current version, same model."""
+    """docs/FORMAT.md, Versions: a version-1 to -8 file decodes as it always did (an outline
+    crossing itself mended; no blur map before version 7; the detail image in one piece before
+    version 8); encoding writes the current version, same model, its detail images as bare AV1
+    bitstreams (smaller by their AVIF boxes)."""
     data = path.read_bytes()
     version = int(path.parent.name[1:])
     assert struct.unpack_from("<H", data, 8)[0] == version
@@ -890,18 +891,19 @@ def test_old_version_files_are_read_and_written_back_as_the_current_version(path
     assert (m.detail is None) == (version < 3 or struct.unpack_from("<H", data, 10)[0] == 0)
     assert not any(r.transparent for r in m.regions)
     assert (m.blur_map is None) == (version < 7)
-    assert m.detail is None or len(m.detail.payload) == 1
+    assert m.detail is None or len(m.detail.payload) == (3 if version >= 8 else 1)
     again = codec.encode(m)
     assert struct.unpack_from("<H", again, 8)[0] == codec.VERSION
     # the same flags (detail or not), and from version 3 on the same sections but the regions
-    # (whose outlines are now counted in 1/16 px: xy_shift one more; a crossing mended); a
-    # version-7 file's sections are all the same
-    if version == 7:
-        assert again[layout.HEADER_SIZE:] == data[layout.HEADER_SIZE:]
+    # (whose outlines are now counted in 1/16 px: xy_shift one more; a crossing mended) and the
+    # detail (AV1 bitstreams without their AVIF boxes: 269 bytes a file, some 150 after zstd)
     assert struct.unpack_from("<H", again, 10)[0] == struct.unpack_from("<H", data, 10)[0]
     if version >= 3:
         sizes, before = codec.section_sizes(again), codec.section_sizes(data)
-        assert {k: v for k, v in sizes.items() if k != "regions"} == {k: v for k, v in before.items() if k != "regions"}
+        kept = ("regions", "detail") if version < 7 else ("detail",)
+        assert {k: v for k, v in sizes.items() if k not in kept} == {k: v for k, v in before.items() if k not in kept}
+        if m.detail is not None:
+            assert 100 <= before["detail"] - sizes["detail"] <= 300 * len(m.detail.payload)
     assert_models_identical(codec.decode(again), m)
     # shared borders are stored once: never larger than the version-1 file's outlines
     assert codec.section_sizes(again)["regions"] <= codec.section_sizes(data)["regions"] + 16

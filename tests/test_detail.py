@@ -237,7 +237,8 @@ def test_detail_survives_encode_decode_bit_exactly(textured):
     assert codec.encode(model) == textured.data
     assert codec.encode(codec.quantize(model)) == textured.data
     sizes = codec.section_sizes(textured.data)
-    assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload[0])
+    # the section holds the image's AV1 bitstream, not its AVIF boxes (version 9)
+    assert sum(sizes.values()) == len(textured.data) and sizes["detail"] > len(d.payload[0]) - 269
     assert struct.unpack_from("<HH", textured.data, 8) == (
         layout.VERSION, layout.FLAG_DETAIL | layout.FLAG_CURVES | layout.FLAG_BLUR_MAP)
 
@@ -327,6 +328,13 @@ def _reject(data: bytes, match: str) -> None:
     assert "\n" not in str(info.value)
 
 
+def _as_avif(data: bytes) -> dict:
+    """The detail section of ``data`` with its images stored as whole AVIF files (codec ``"avif"``,
+    which version 9 still reads) instead of bare AV1 bitstreams."""
+    files = codec.decode(data).detail.payload
+    return {**_detail_map(data), "codec": "avif", "image": files[0] if len(files) == 1 else list(files)}
+
+
 def _bigger_ispe(image: bytes, w: int, h: int) -> bytes:
     at = image.index(b"ispe")
     return image[:at + 8] + struct.pack(">II", w, h) + image[at + 16:]
@@ -335,6 +343,7 @@ def _bigger_ispe(image: bytes, w: int, h: int) -> bytes:
 def test_a_corrupt_image_is_refused_quietly(textured, capfd):
     """libaom's and OpenCV's own complaints do not reach stderr: the one line is ours."""
     base = _detail_map(textured.data)
+    assert base["codec"] == "av1"
     image = bytearray(base["image"])
     image[-40:] = bytes(40)
     capfd.readouterr()
@@ -342,11 +351,60 @@ def test_a_corrupt_image_is_refused_quietly(textured, capfd):
     assert capfd.readouterr().err == ""
 
 
+def test_detail_images_are_stored_without_their_avif_boxes(textured, banded):
+    """Version 9: each image is the AV1 bitstream of the AVIF file the encoder wrote, which the
+    decoder wraps in the same boxes again; an AVIF file that is not that wrapping is stored
+    whole (codec "avif"), and either is read."""
+    from tpsv.codec import avif
+
+    for data in (textured.data, banded[1]):
+        model = codec.decode(data)
+        bare = _detail_map(data)
+        images = bare["image"] if isinstance(bare["image"], list) else [bare["image"]]
+        assert bare["codec"] == "av1" and [avif.HEAD + len(b) for b in images] == [len(f) for f in model.detail.payload]
+        for b, f in zip(images, model.detail.payload):
+            assert avif.wrap(b, *detail_codec.image_sizes(f)[0]) == f and f.endswith(b)
+        whole = _with_detail(data, _as_avif(data))
+        assert codec.decode(whole).detail == model.detail
+        assert 100 < len(whole) - len(data) <= 269 * len(images)
+        assert codec.encode(codec.decode(whole)) == data
+    # another layout (a box added after the file type) cannot be dropped: it stays a whole file
+    f = codec.decode(textured.data).detail.payload[0]
+    odd = f[:28] + struct.pack(">I", 8) + b"free" + f[28:]
+    assert avif.unwrap(odd, *detail_codec.image_sizes(f)[0]) is None
+    assert avif.unwrap(f[:-1], *detail_codec.image_sizes(f)[0]) is None
+    assert avif.sequence_header(b"") is None and avif.sequence_header(b"\x12\x00\x0a") is None
+    w, h = detail_codec.image_sizes(f)[0]
+    assert avif.sequence_header(f[avif.HEAD:])[1:] == (w, h)
+    with pytest.raises(TpsvFormatError, match=f"image is {w}x{h}, the texture's is {w - 1}x{h}"):
+        avif.wrap(f[avif.HEAD:], w - 1, h)
+
+
 def test_hostile_detail_sections_are_refused(textured):
     data = textured.data
-    base = _detail_map(data)
+    bare = _detail_map(data)
+    base = _as_avif(data)
     R = len(codec.decode(data).regions)
     image = base["image"]
+    own = bare["image"]
+    av1_cases = [
+        ({"image": own[:len(own) // 2]}, "cannot be decoded|decodes to"),
+        ({"image": own[:3]}, "not an AV1 still picture"),
+        ({"image": b"\x12\x00" + bytes(40)}, "not an AV1 still picture"),
+        ({"image": b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01"}, "not an AV1 still picture"),
+        ({"image": "text"}, "image is not a bin"),
+        ({"width": bare["width"] - 1}, "image is 64x129, the texture's is 63x129"),
+        ({"codec": "AV1"}, "unknown codec"),
+    ]
+    for change, match in av1_cases:
+        _reject(_with_detail(data, {**bare, **change}), match)
+    # bare bitstreams are a version-9 thing
+    import zlib
+
+    v8 = bytearray(data)
+    struct.pack_into("<H", v8, 8, 8)
+    struct.pack_into("<I", v8, 68, zlib.crc32(bytes(v8[:68])))
+    _reject(bytes(v8), "unknown codec 'av1'")
     cases = [
         ({"codec": "webp"}, "unknown codec"),
         ({"width": 10**6}, "width = 1000000 not in"),
@@ -425,7 +483,7 @@ def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
     # a version-7 decoder's rule: the image is one bin there
     import zlib
 
-    v7 = bytearray(data)
+    v7 = bytearray(_with_detail(data, _as_avif(data)))
     struct.pack_into("<H", v7, 8, 7)
     struct.pack_into("<I", v7, 68, zlib.crc32(bytes(v7[:68])))
     _reject(bytes(v7), "image is not a bin$")
@@ -462,7 +520,13 @@ def test_a_payload_of_one_bytes_object_is_the_image_in_one_piece(textured):
 
 def test_hostile_bands_are_refused(banded):
     _, data = banded
-    base = _detail_map(data)
+    bare = _detail_map(data)
+    for image, match in [(bare["image"] + bare["image"][:1], "4 files, not 3 planes' bands"),
+                         (bare["image"][:2], "array of 3..1023 bins"),
+                         (bare["image"][:2] + [bare["image"][2][:5]], "not an AV1 still picture"),
+                         (bare["image"] * 2, "cannot be cut into 2 bands")]:
+        _reject(_with_detail(data, {**bare, "image": image}), match)
+    base = _as_avif(data)
     y, cb, cr = base["image"]
     stacked = _detail_map(codec.encode(codec.decode(data)))["image"]
     cases = [

@@ -12,7 +12,9 @@ image keep every texel). Since version 8 a texture may instead be coded plane
 by plane, each plane in bands of rows, each band an AVIF file of its own
 (``image`` an array of them; tpsv writes one band a plane): OpenCV codes one
 AVIF image on one thread, and the files are coded (and decoded) on the host's
-cores at once (:func:`plane_bands`).
+cores at once (:func:`plane_bands`). Since version 9 (codec ``"av1"``) each
+file is stored as its AV1 bitstream alone and wrapped in its AVIF boxes again
+when read (:mod:`tpsv.codec.avif`).
 
 The AVIF image is decoded by OpenCV's libavif. Before it is, the image's own
 declared sizes (every ``ispe`` property of its ISO-BMFF boxes) must fit the
@@ -31,13 +33,16 @@ import numpy as np
 from ..errors import TpsvError, TpsvFormatError
 from ..model import DETAIL_LUMA, Detail
 from ..quiet import quiet_stderr
-from . import layout
+from . import avif, layout
 from . import sections
 from .sections import _expect_bin, _expect_int, _expect_map, _packb
 
 #: Frame vectors are stored in units of 1/FRAME_SCALE px.
 FRAME_SCALE = 16
 CODEC = "avif"
+#: The codec of a version-9 section whose images are AV1 bitstreams, each wrapped by the decoder
+#: in the AVIF boxes tpsv's encoder writes (:mod:`tpsv.codec.avif`).
+CODEC_AV1 = "av1"
 KEYS = ("codec", "width", "height", "quality", "frame", "mode", "image")
 #: AVIF encoder effort (libaom speed 0-10, lower is slower and smaller), careful and fast. On
 #: the samples' textures (qualities 20-90, BD-PSNR against speed 6): speed 5 +0.31 to +0.56 dB
@@ -225,20 +230,17 @@ def decode_texels(files, width: int, height: int) -> np.ndarray:
     """The texels (height, width, 3) uint16 of a detail image: one AVIF file of the planes stacked,
     or ``3 n`` files, each plane's ``n`` bands of rows (:func:`band_rows`) plane by plane; every
     file's declared sizes checked before it is decoded, its pixels after."""
+    sizes = file_sizes(width, height, len(files))
+    for data, (cols, rows) in zip(files, sizes):
+        _check_sizes(data, cols, rows, "image" if len(files) == 1 else "band")
     if len(files) == 1:
-        rows, cols = image_shape(width, height)
-        _check_sizes(files[0], cols, rows, "image")
+        (cols, rows), = sizes
         with quiet_stderr():  # libaom and OpenCV log corrupt data themselves; the error below is the one line
             img, problem = _decoded(files[0], (rows, cols))
         if problem:
             raise TpsvFormatError(f"section detail: {problem}")
         return np.ascontiguousarray(np.stack(np.split(img, 3, axis=plane_axis(width, height)), axis=-1))
-    if len(files) % 3:
-        raise TpsvFormatError(f"section detail: image in {len(files)} files, not 3 planes' bands")
-    spans = band_rows(height, len(files) // 3)
-    pieces = [(k, a, b) for k in range(3) for a, b in spans]
-    for data, (_, a, b) in zip(files, pieces):
-        _check_sizes(data, width, b - a, "band")
+    pieces = [(k, a, b) for k in range(3) for a, b in band_rows(height, len(files) // 3)]
     texels = np.empty((height, width, 3), np.uint16)
 
     def decode(i):
@@ -296,16 +298,31 @@ def payload_bands(payload) -> tuple[bytes, ...]:
     return tuple(bytes(b) for b in bands)
 
 
+def file_sizes(width: int, height: int, files: int) -> list[tuple[int, int]]:
+    """``(columns, rows)`` of each AVIF file of a ``width x height`` texture in ``files`` files
+    (:func:`decode_texels`' layouts; TpsvFormatError for a count that is neither 1 nor 3 bands)."""
+    if files % 3 and files != 1:
+        raise TpsvFormatError(f"section detail: image in {files} files, not 3 planes' bands")
+    if files == 1:
+        rows, cols = image_shape(width, height)
+        return [(cols, rows)]
+    return [(width, b - a) for _ in range(3) for a, b in band_rows(height, files // 3)]
+
+
 def pack_section(detail: Detail, n_regions: int) -> bytes:
-    """The raw detail section of ``detail`` (already :func:`quantize`-d or not)."""
+    """The raw detail section of ``detail`` (already :func:`quantize`-d or not): its images as
+    AV1 bitstreams (codec ``"av1"``) when every AVIF file is the standard wrapping of one
+    (:func:`tpsv.codec.avif.unwrap`), else as the AVIF files."""
     h, w = detail.texels.shape[:2]
     bands = payload_bands(detail.payload)
+    bare = [avif.unwrap(f, c, r) for f, (c, r) in zip(bands, file_sizes(w, h, len(bands)))]
+    codec, image = (CODEC, bands) if any(b is None for b in bare) else (CODEC_AV1, bare)
     return _packb({
-        "codec": CODEC, "width": int(w), "height": int(h), "quality": int(detail.quality),
+        "codec": codec, "width": int(w), "height": int(h), "quality": int(detail.quality),
         "frame": quantize_frame(detail.frame, n_regions).astype("<i4").tobytes(),
         "mode": np.asarray(detail.mode, np.uint8).tobytes(),
-        # one band is stored as before version 8 (a file re-encoded keeps its bytes)
-        "image": bands[0] if len(bands) == 1 else list(bands),
+        # one band is stored as before version 8
+        "image": image[0] if len(image) == 1 else list(image),
     })
 
 
@@ -313,7 +330,8 @@ def unpack_section(raw: bytes, h: layout.Header) -> Detail:
     """The detail layer of a raw detail section, every field checked (TpsvFormatError)."""
     name = "detail"
     obj = _expect_map(sections.unpack(raw, name), KEYS, name)
-    if obj["codec"] != CODEC:
+    bare = h.version >= layout.AV1_DETAIL_SINCE and obj["codec"] == CODEC_AV1
+    if obj["codec"] != CODEC and not bare:
         raise TpsvFormatError(f"section detail: unknown codec {obj['codec']!r}")
     w = _expect_int(obj, "width", 1, h.width, name)
     hh = _expect_int(obj, "height", 1, h.height, name)
@@ -333,6 +351,8 @@ def unpack_section(raw: bytes, h: layout.Header) -> Detail:
         image = (image,)
     else:
         raise TpsvFormatError("section detail: image is not a bin" + (" or an array of bins" if banded else ""))
+    if bare:
+        image = tuple(avif.wrap(b, c, r) for b, (c, r) in zip(image, file_sizes(w, hh, len(image))))
     texels = decode_texels(image, w, hh)
     return Detail(payload=image, texels=texels, frame=frame.reshape(R, 3, 2) / FRAME_SCALE, mode=mode,
                   quality=quality)

@@ -18,12 +18,14 @@ from ..errors import TpsvError, TpsvFormatError
 MAGIC = b"TPSV\r\n\x1a\n"
 
 #: The newest format version this code reads and the one it writes.
-VERSION = 8
+VERSION = 9
 #: From this version on no outline polygon crosses itself (a file with one is refused);
 #: older files are mended as they are read (docs/FORMAT.md, Versions).
 SIMPLE_OUTLINES_SINCE = 6
 #: From this version on the detail section's image may be cut into bands of rows (docs/FORMAT.md, detail).
 BANDED_DETAIL_SINCE = 8
+#: From this version on the detail section's images may be bare AV1 bitstreams (codec ``"av1"``).
+AV1_DETAIL_SINCE = 9
 #: Header flag (version 3): a detail section follows the features section,
 #: preceded by its compressed and raw sizes (two little-endian uint32).
 FLAG_DETAIL = 1
