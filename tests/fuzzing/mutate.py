@@ -315,14 +315,22 @@ def mutate_section(case: Case, data: bytes, rng: random.Random) -> None:
     k = rng.randrange(len(comps))
     obj = msgpack.unpackb(raws[k], raw=False, strict_map_key=False)
     case.ops.append(f"section {(layout.SECTIONS + ('detail',))[k]}")
-    if k == 3 and isinstance(obj, dict) and isinstance(obj.get("image"), bytes) and rng.random() < 0.5:
-        # the AVIF payload itself: flipped bytes, a cut, or a lie about its size in its boxes
-        image = bytearray(obj["image"])
+    files = obj.get("image") if isinstance(obj, dict) else None
+    files = [files] if isinstance(files, bytes) else files
+    if k == 3 and isinstance(files, list) and files and all(isinstance(f, bytes) and f for f in files) \
+            and rng.random() < 0.5:
+        # an image's own bytes (an AV1 bitstream, or an AVIF file): flipped bytes, a cut, or a lie
+        # about its size in its sequence header or boxes
+        at = rng.randrange(len(files))
+        image = bytearray(files[at])
         for _ in range(rng.randint(1, 8)):
             image[rng.randrange(len(image))] = rng.randrange(256)
         if rng.random() < 0.3:
             image = image[: rng.randrange(len(image))]
-        obj["image"] = bytes(image)
+        files[at] = bytes(image)
+        obj["image"] = files[0] if isinstance(obj["image"], bytes) else files
+        if rng.random() < 0.1:
+            obj["codec"] = "avif" if obj.get("codec") == "av1" else "av1"
         case.ops.append("detail image bytes")
     for _ in range(rng.randint(1, 3)):
         obj = _mutate_map(obj, rng, case.ops) if isinstance(obj, dict) else _hostile_value(rng, obj)
