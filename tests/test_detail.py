@@ -440,6 +440,29 @@ def test_hostile_detail_sections_are_refused(textured):
     _reject(data[:layout.parse_header(data).detail_offset + 3], "truncated")
 
 
+def test_chroma_planes_are_coded_a_little_below_the_luma(monkeypatch):
+    qs = range(1, 101)
+    chroma = [detail_codec.chroma_quality(q) for q in qs]
+    assert chroma == sorted(chroma) and chroma[0] >= 1
+    assert all(detail_codec.avif_quality(q) - detail_codec.CHROMA_STEPS <= c <= detail_codec.avif_quality(q)
+               for q, c in zip(qs, chroma))
+    assert detail_codec.chroma_quality(100) == detail_codec.avif_quality(100) == detail_codec.MAX_AVIF_QUALITY
+    # plane by plane, Cb and Cr are the files of their planes coded at chroma_quality; Y at avif_quality
+    rng = np.random.default_rng(3)
+    texels = np.clip(512 + np.cumsum(rng.normal(0, 4, (40, 48, 3)), axis=1), 0, 1023).astype(np.uint16)
+    monkeypatch.setattr(detail_codec, "ONE_PIECE_TEXELS", 1)
+    files = detail_codec.encode_texels(texels, 60)
+
+    def alone(k, q):
+        return cv2.imencode(".avif", np.ascontiguousarray(texels[..., k]), [
+            cv2.IMWRITE_AVIF_QUALITY, q, cv2.IMWRITE_AVIF_SPEED, detail_codec.avif_speed(48, 40),
+            cv2.IMWRITE_AVIF_DEPTH, 10])[1].tobytes()
+
+    assert files[0] == alone(0, detail_codec.avif_quality(60))
+    assert files[1:] == (alone(1, detail_codec.chroma_quality(60)), alone(2, detail_codec.chroma_quality(60)))
+    assert detail_codec.chroma_quality(60) < detail_codec.avif_quality(60)
+
+
 def test_a_large_texture_is_coded_plane_by_plane():
     """Small textures in one piece; from 2^17 texels a plane on, a file a plane, whatever the size
     (docs/FORMAT.md, detail); a plane in ``n`` bands of 64-row multiples, the last never empty."""
