@@ -288,13 +288,18 @@ def test_a_grey_photo_comes_back_grey_at_every_scale(photo):
 
 
 def test_textures_up_to_a_megapixel_are_coded_carefully(monkeypatch):
-    """The AVIF encoder's effort: the careful speed up to CAREFUL_TEXELS texels, the fast one
-    above (a 12-megapixel texture at the careful speed would take a minute); the careful speed
-    gives the smaller file."""
+    """The AVIF encoder's effort: more the smaller a texture in one piece is, the careful speed
+    up to CAREFUL_TEXELS texels, the fast one above (a 12-megapixel texture at the careful speed
+    would take a minute); the careful speed gives the smaller file."""
     top = detail_codec.CAREFUL_TEXELS
     assert detail_codec.avif_speed(1024, top // 1024) == detail_codec.AVIF_SPEED
     assert detail_codec.avif_speed(1024, top // 1024 + 1) == detail_codec.FAST_AVIF_SPEED
     assert detail_codec.AVIF_SPEED < detail_codec.FAST_AVIF_SPEED
+    one = detail_codec.ONE_PIECE_TEXELS
+    sizes = [(64, 64), (127, 128), (128, 128), (181, 181), (256, 255), (256, 256), (one // 512, 511),
+             (one // 512, 512), (1024, 1024)]
+    speeds = [detail_codec.avif_speed(w, h) for w, h in sizes]
+    assert speeds == [1, 1, 2, 2, 3, 4, 4, 5, 5] and speeds == sorted(speeds)
     rng = np.random.default_rng(3)
     smooth = np.cumsum(rng.normal(0, 4, (64, 96, 3)), axis=1)
     texels = np.clip(512 + smooth - smooth.mean(), 0, 1023).astype(np.uint16)
@@ -499,9 +504,10 @@ def test_a_texture_in_bands_round_trips_bit_exactly(banded, textured):
     back = codec.decode(data)
     assert back.detail == model.detail and codec.encode(back) == data
     assert isinstance(_detail_map(data)["image"], list)
-    # each plane is an AVIF file of its own; together the same texture as in one piece, nearly
+    # each plane is an AVIF file of its own (the chroma a few qualities lower, at another speed);
+    # together the same texture as in one piece, nearly: within 3 8-bit levels on average
     one = codec.decode(textured.data).detail.texels
-    assert np.abs(back.detail.texels.astype(int) - one).mean() < 4
+    assert np.abs(back.detail.texels.astype(int) - one).mean() < 6
     assert [detail_codec.image_sizes(b)[0] for b in back.detail.payload] == [(model.width, model.height)] * 3
     # a version-7 decoder's rule: the image is one bin there
     import zlib
