@@ -295,11 +295,10 @@ def test_textures_up_to_a_megapixel_are_coded_carefully(monkeypatch):
     assert detail_codec.avif_speed(1024, top // 1024) == detail_codec.AVIF_SPEED
     assert detail_codec.avif_speed(1024, top // 1024 + 1) == detail_codec.FAST_AVIF_SPEED
     assert detail_codec.AVIF_SPEED < detail_codec.FAST_AVIF_SPEED
-    one = detail_codec.ONE_PIECE_TEXELS
-    sizes = [(64, 64), (127, 128), (128, 128), (181, 181), (256, 255), (256, 256), (one // 512, 511),
-             (one // 512, 512), (1024, 1024)]
+    sizes = [(64, 64), (127, 128), (128, 128), (181, 181), (256, 255), (256, 256), (362, 362), (512, 512),
+             (513, 512), (1024, 1024)]
     speeds = [detail_codec.avif_speed(w, h) for w, h in sizes]
-    assert speeds == [1, 1, 2, 2, 3, 4, 4, 5, 5] and speeds == sorted(speeds)
+    assert speeds == [1, 1, 2, 2, 3, 4, 4, 4, 5, 5] and speeds == sorted(speeds)
     rng = np.random.default_rng(3)
     smooth = np.cumsum(rng.normal(0, 4, (64, 96, 3)), axis=1)
     texels = np.clip(512 + smooth - smooth.mean(), 0, 1023).astype(np.uint16)

@@ -53,12 +53,13 @@ AVIF_SPEED, FAST_AVIF_SPEED = 5, 6
 #: Textures larger than this (texels) are coded at the fast speed: at speed 5 a 12-megapixel
 #: texture would take about a minute of the encoder.
 CAREFUL_TEXELS = 1 << 20
-#: Textures coded in one piece (fewer than :data:`ONE_PIECE_TEXELS` texels a plane) take more
-#: effort the smaller they are: ``(texels a plane below, speed)``, so that one coding stays under
-#: about a second on a 2-core CPU. BD-PSNR against speed 5 (AVIF qualities 20-95, the samples
-#: area-downscaled 2x and 4x and chelsea's 128 x 96 eye): speed 4 +0.03..+0.15 dB, 3
-#: +0.21..+0.35, 2 +0.27..+0.44, 1 +0.33..+0.46, for 1.5, 2.6, 3.6 and 4.4 times the time.
-SMALL_SPEEDS = ((1 << 14, 1), (1 << 15, 2), (1 << 16, 3))
+#: Smaller textures take more effort: ``(texels a plane below, speed)``, so that one coding stays
+#: under about a second on a 2-core CPU. BD-PSNR against speed 5 (AVIF qualities 20-95, the
+#: samples area-downscaled 2x and 4x and chelsea's 128 x 96 eye, coded in one piece): speed 4
+#: +0.03..+0.15 dB, 3 +0.21..+0.35, 2 +0.27..+0.44, 1 +0.33..+0.46, for 1.5, 2.6, 3.6 and 4.4
+#: times the time; the samples themselves (plane by plane, through ``encode_quality``) at speed 4
+#: +0.09..+0.10 dB for 0.1-0.35 s more a ``vectorize`` (docs/DESIGN.md, "Detail layer").
+SMALL_SPEEDS = ((1 << 14, 1), (1 << 15, 2), (1 << 16, 3), ((1 << 18) + 1, 4))
 #: Textures of fewer texels a plane than this are coded in one piece (the planes stacked in one
 #: image, as before version 8); larger ones plane by plane, a file a plane, so that the host's
 #: cores code them at once (:func:`plane_bands`). Every file costs its own AVIF headers (mostly
@@ -113,15 +114,13 @@ def image_shape(width: int, height: int) -> tuple[int, int]:
 
 
 def avif_speed(width: int, height: int) -> int:
-    """The AVIF encoder speed for a ``width x height`` texture: slower the smaller it is below
-    2^16 texels (:data:`SMALL_SPEEDS`), 4 up to one piece's size (:data:`ONE_PIECE_TEXELS`),
-    :data:`AVIF_SPEED` up to :data:`CAREFUL_TEXELS` texels, :data:`FAST_AVIF_SPEED` above."""
+    """The AVIF encoder speed for a ``width x height`` texture: slower the smaller it is up to
+    2^18 texels (:data:`SMALL_SPEEDS`), :data:`AVIF_SPEED` up to :data:`CAREFUL_TEXELS` texels,
+    :data:`FAST_AVIF_SPEED` above."""
     n = int(width) * int(height)
     if n > CAREFUL_TEXELS:
         return FAST_AVIF_SPEED
-    if n >= ONE_PIECE_TEXELS:
-        return AVIF_SPEED
-    return next((speed for below, speed in SMALL_SPEEDS if n < below), AVIF_SPEED - 1)
+    return next((speed for below, speed in SMALL_SPEEDS if n < below), AVIF_SPEED)
 
 
 def band_height(rows: int, n: int) -> int:
