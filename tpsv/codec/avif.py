@@ -117,10 +117,13 @@ def wrap(bitstream: bytes, width: int, height: int) -> bytes:
 
 def unwrap(data: bytes, width: int, height: int) -> bytes | None:
     """The AV1 bitstream of an AVIF file that is exactly :func:`wrap` of it, else None."""
-    body = bytes(data[HEAD:])
-    if len(data) <= HEAD or sequence_header(body) is None or sequence_header(body)[1:] != (width, height):
+    if len(data) <= HEAD:
         return None
-    return body if wrap(body, width, height) == bytes(data) else None
+    body = bytes(data[HEAD:])
+    try:
+        return body if wrap(body, width, height) == bytes(data) else None
+    except TpsvFormatError:  # no sequence header of a still picture of this size
+        return None
 
 
 __all__ = ["HEAD", "sequence_header", "unwrap", "wrap"]

@@ -289,10 +289,9 @@ class Trials:
         if self.detail:
             ev, shown, texels = self.vector_base()
             coded = detail_layer.code_texels(texels, quality)
-            model = replace(_stamped(ev.model, quality),
-                            detail=detail_layer.make_detail(ev.model, texels, quality, coded, self.grey))
-            err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1], self.grey_pixels))
             base = _stamped(ev.model, quality)
+            model = replace(base, detail=detail_layer.make_detail(ev.model, texels, quality, coded, self.grey))
+            err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1], self.grey_pixels))
             if not detail_pays(ev.mse, err, len(codec.encode(base)), len(codec.encode(model))):
                 model, err = base, ev.mse
         else:
@@ -315,11 +314,11 @@ class Trials:
 
 
 #: Least gain (dB of PSNR at scale 1) the detail layer must bring per doubling of the file for it
-#: to be kept (:func:`detail_pays`). An AVIF file costs about 280 bytes however little it holds,
-#: which a small flat-colour picture's whole file may be three times over: the bench's drawings
-#: at quality 75 carried 357-448 bytes of texture (22-29 % of the file) for +0.00 dB (frames,
-#: grid), and frames at quality 95 lost 0.10 dB by it. Where the texture holds anything (the
-#: logo +2.45 dB for 40 % more bytes, 5 dB per doubling; photos 10-20 dB) it stays.
+#: to be kept (:func:`detail_pays`). A texture costs bytes however little it holds: the bench's
+#: drawings frames and grid at quality 75 carried 357 and 448 bytes of it (22-29 % of the file;
+#: 196 and 270 as bare AV1 bitstreams, format version 9) for +0.00 and +0.02 dB, and frames at
+#: quality 95 lost 0.10 dB by it. Where the texture holds anything (the logo +2.45 dB for 40 %
+#: more bytes, 5 dB per doubling; photos 6-11 dB per doubling even at quality 1) it stays.
 DETAIL_MIN_SLOPE = 1.0
 
 
