@@ -290,7 +290,8 @@ class Evaluation(NamedTuple):
 # ----------------------------------------------------------------------------- stages
 
 
-def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0) -> np.ndarray:
+def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0,
+              counts: tuple[int, int] = segment.AUTO_COUNTS) -> np.ndarray:
     """Stage 1: the label map, segmented automatically when absent.
 
     Parameters
@@ -299,6 +300,8 @@ def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0) -> np.n
     labels : ndarray (H, W) int, optional
     seed : int
         Seed of the automatic segmentation.
+    counts : (int, int)
+        The region counts the automatic segmentation chooses from.
 
     Returns
     -------
@@ -311,7 +314,7 @@ def label_map(rgb: np.ndarray, labels: np.ndarray | None, seed: int = 0) -> np.n
     """
     h, w = rgb.shape[:2]
     if labels is None:
-        return segment.segment_auto(rgb, seed=seed)
+        return segment.segment_auto(rgb, seed=seed, counts=counts)
     if labels.shape != (h, w):
         raise TpsvError(f"label map is {labels.shape[1]}x{labels.shape[0]} but the image is {w}x{h}")
     return labels

@@ -196,6 +196,9 @@ def _check_rgb(rgb: np.ndarray) -> np.ndarray:
 MAX_SUPERPIXELS = 300
 #: Region counts :func:`segment_auto` chooses from when none is asked for.
 AUTO_COUNTS = (4, 12)
+#: The fewer counts a small photo's coarser candidate chooses from (``tpsv.encode.rate``: its
+#: outlines can outweigh its texture).
+FEW_COUNTS = (3, 6)
 
 
 #: Above this many pixels SLIC runs on a copy area-downscaled by a whole factor to at most this
@@ -423,8 +426,8 @@ def _roots(parent: list[int]) -> np.ndarray:
     return np.array(par)
 
 
-def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
-    """The merge forest at the region count in :data:`AUTO_COUNTS` where the next merge's cost jumps most.
+def _elbow(history, snapshots: dict, default: list[int], counts=AUTO_COUNTS) -> list[int]:
+    """The merge forest at the region count in ``counts`` where the next merge's cost jumps most.
 
     Merging from ``k + 1`` to ``k`` regions cost ``costs[k]``; the jump at
     ``k`` is ``costs[k - 1] / costs[k]``. Ties keep the smaller ``k``;
@@ -433,7 +436,7 @@ def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
     """
     costs = {k: c for k, c, _ in history}
     best_k, best_jump = 8, -1.0
-    for k in range(AUTO_COUNTS[0], AUTO_COUNTS[1] + 1):
+    for k in range(counts[0], counts[1] + 1):
         if k in snapshots and (k - 1) in costs and k in costs:
             jump = costs[k - 1] / max(costs[k], 1e-12)
             if jump > best_jump:
@@ -443,16 +446,16 @@ def _elbow(history, snapshots: dict, default: list[int]) -> list[int]:
 
 
 def _merged(sp: np.ndarray, n: int, lab: np.ndarray, seed: int, n_regions: int | None,
-            boundary: bool) -> np.ndarray:
+            boundary: bool, counts=AUTO_COUNTS) -> np.ndarray:
     """Superpixels ``sp`` merged (:class:`_WardMerge`) to ``n_regions``, else to the elbow's count
     (:func:`_elbow`) or, with ``boundary``, to the first edge (:func:`_edge_stop`); slivers and tiny
     pieces then merged by :func:`split_connected`, and with ``boundary`` neighbours without an edge
     between them joined (:func:`_join_seamless`)."""
     graph = _WardMerge(sp, n, lab, seed, boundary=boundary)
     if n_regions is None:
-        history, snapshots = graph.run(1, snapshot_below=AUTO_COUNTS[1])
+        history, snapshots = graph.run(1, snapshot_below=counts[1])
         pick = _edge_stop if boundary else _elbow
-        parent = pick(history, snapshots, graph.parent)
+        parent = pick(history, snapshots, graph.parent, counts)
     else:
         graph.run(n_regions)
         parent = graph.parent
@@ -466,17 +469,17 @@ def _merged(sp: np.ndarray, n: int, lab: np.ndarray, seed: int, n_regions: int |
 EDGE_STEP = 10.0
 
 
-def _edge_stop(history, snapshots: dict, default: list[int]) -> list[int]:
+def _edge_stop(history, snapshots: dict, default: list[int], counts=AUTO_COUNTS) -> list[int]:
     """The merge forest just before the first merge across an edge (:data:`EDGE_STEP`), its region
-    count held within :data:`AUTO_COUNTS`; ``default`` when that count was not recorded.
+    count held within ``counts``; ``default`` when that count was not recorded.
 
     The boundary merge's costs do not rise steadily (a merge can leave a
     neighbour's border cheaper than the merge before), so their largest jump,
     which the Ward merge reads, stopped it too early or too late: a ring's hole
     went into the ring, a background stayed cut.
     """
-    k = next((count + 1 for count, _, step in history if step > EDGE_STEP), AUTO_COUNTS[0])
-    par = snapshots.get(min(max(k, AUTO_COUNTS[0]), AUTO_COUNTS[1]))
+    k = next((count + 1 for count, _, step in history if step > EDGE_STEP), counts[0])
+    par = snapshots.get(min(max(k, counts[0]), counts[1]))
     return default if par is None else par
 
 
@@ -829,7 +832,7 @@ FILL_GAIN = 0.9
 REGION_COST = 0.1
 
 
-def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -> np.ndarray:
+def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0, counts=AUTO_COUNTS) -> np.ndarray:
     """A handful of coherent object regions, automatically.
 
     SLIC superpixels (about 300; SLIC converts to Lab itself; above :data:`SLIC_PIXELS`
@@ -838,7 +841,7 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
     c_b|^2`` (mean Lab colours ``c`` by :func:`tpsv.color.srgb_to_lab`, sizes ``n``) scaled up by a factor 1..4
     when the shared border is short relative to the smaller region's
     perimeter (keeps regions compact), down to ``n_regions``. Without
-    ``n_regions`` the count is chosen in ``[4, 12]`` at the largest relative
+    ``n_regions`` the count is chosen in ``counts`` (4 to 12) at the largest relative
     jump of the merge cost (the elbow). Slivers and tiny pieces are then
     merged by :func:`split_connected`.
 
@@ -870,6 +873,9 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
         Number of regions to merge down to (before the clean-up).
     seed : int
         Breaks exact ties of the merge cost.
+    counts : (int, int)
+        The region counts chosen from without ``n_regions`` (:data:`AUTO_COUNTS`;
+        :data:`FEW_COUNTS` for a coarser candidate).
 
     Returns
     -------
@@ -886,7 +892,7 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0) -
         return np.zeros((H, W), np.int32) if flat is None else flat
 
     def merged_and_scored(boundary: bool):
-        labels = _merged(sp, n, lab, seed, n_regions, boundary=boundary)
+        labels = _merged(sp, n, lab, seed, n_regions, boundary=boundary, counts=counts)
         return labels, fill_residual(lab, labels) * (1.0 + REGION_COST * (int(labels.max()) + 1))
 
     # the two merges are independent: side by side on two host threads (their numpy passes over the
