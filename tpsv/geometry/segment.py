@@ -431,11 +431,11 @@ def _elbow(history, snapshots: dict, default: list[int], counts=AUTO_COUNTS) -> 
 
     Merging from ``k + 1`` to ``k`` regions cost ``costs[k]``; the jump at
     ``k`` is ``costs[k - 1] / costs[k]``. Ties keep the smaller ``k``;
-    without any candidate the count is 8, or ``default`` when that was not
-    recorded.
+    without any candidate the count is the middle of ``counts`` (8 of the
+    default), or ``default`` when that was not recorded.
     """
     costs = {k: c for k, c, _ in history}
-    best_k, best_jump = 8, -1.0
+    best_k, best_jump = (counts[0] + counts[1]) // 2, -1.0
     for k in range(counts[0], counts[1] + 1):
         if k in snapshots and (k - 1) in costs and k in costs:
             jump = costs[k - 1] / max(costs[k], 1e-12)
