@@ -293,8 +293,9 @@ class Trials:
             base = _stamped(ev.model, quality)
             model = replace(base, detail=detail_layer.make_detail(ev.model, texels, quality, coded, self.grey))
             err = metrics.mse(self.rgb, detail_layer.with_texels(shown, coded[1], self.grey_pixels))
-            if not detail_pays(ev.mse, err, len(codec.encode(base)), len(codec.encode(model))):
-                model, err = base, ev.mse
+            data, base_data = codec.encode(model), codec.encode(base)
+            if not detail_pays(ev.mse, err, len(base_data), len(data)):
+                model, err, data = base, ev.mse, base_data
         else:
             v = vector_params(quality)
             h, w = self.rgb.shape[:2]
@@ -307,8 +308,9 @@ class Trials:
                     t_canny, made = NO_PAIRS, None  # the pairs do not fit in the file (a large photo): the lattice alone
             ev = cands.evaluate(t_canny, v["t_super"], final=True, min_spacing=finest, model=made)
             model, err = _stamped(ev.model, quality), ev.mse
+            data = codec.encode(model)
         # quantize is decode(encode()) without decoding the texture's AVIF again
-        out = (codec.encode(model), codec.quantize(model), err)
+        out = (data, codec.quantize(model), err)
         self.done[quality] = out
         self.tried(len(self.done))
         return out
@@ -409,7 +411,7 @@ def encode_quality(
                       tried=lambda n: report(min(1 + n, total - 1), total))
 
     trials = make_trials(geometry)
-    if detail and labels is None and alpha is None and rgb.shape[0] * rgb.shape[1] <= FEW_REGIONS_PIXELS:
+    if detail and labels is None and alpha is None:
         trials = fewer_regions(trials, make_trials, seed, outlines)
     reached = True
     workers = 1
@@ -446,9 +448,10 @@ FEW_REGIONS_DB = 0.1
 
 
 def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines: str = "fitted") -> Trials:
-    """``trials``, or those of the same picture segmented into fewer regions
-    (:data:`tpsv.geometry.segment.FEW_COUNTS`) when at the default quality these make the smaller
-    file and read at most :data:`FEW_REGIONS_DB` lower.
+    """``trials``, or, for a picture of at most :data:`FEW_REGIONS_PIXELS` pixels in regions of
+    fewer than :data:`FEW_REGIONS_AREA` on average, those of the same picture segmented into
+    fewer regions (:data:`tpsv.geometry.segment.FEW_COUNTS`) when at the default quality these make
+    the smaller file and read at most :data:`FEW_REGIONS_DB` lower.
 
     A small photo gets about as many regions as a large one, and its outlines then hold much of its
     file: chelsea area-downscaled 4x (112 x 75) took 9 regions, whose outline vertices were 1011
@@ -468,7 +471,8 @@ def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines
         As :func:`tpsv.encode.vectorize.image_geometry`.
     """
     rgb = trials.rgb
-    if rgb.shape[0] * rgb.shape[1] >= FEW_REGIONS_AREA * len(trials.geometry.regions):
+    pixels = rgb.shape[0] * rgb.shape[1]
+    if pixels > FEW_REGIONS_PIXELS or pixels >= FEW_REGIONS_AREA * len(trials.geometry.regions):
         return trials
     few = label_map(rgb, None, seed, counts=segment.FEW_COUNTS)
     if int(few.max()) + 1 >= len(trials.geometry.regions):
