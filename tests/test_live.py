@@ -172,3 +172,27 @@ def test_rasterise_dirty_draws_exactly_the_dirty_pixels():
         assert 0 < n == int(want.sum()) < want.size
         assert np.array_equal(drawn, want)
         assert np.array_equal(got[want], full.reshape(-1, 3)[want])
+
+
+def test_edge_widths_and_curves_alone_are_drawn_again():
+    """An update that changes only the borders' edge widths (``blur``, ``blur_map``) or only whether the
+    outlines are drawn as curves keeps no stale border pixels: the image is ``render``'s (both kept
+    the old borders until 2026-11-27, up to 0.16 apart on a photo's model)."""
+    from dataclasses import replace
+
+    from tpsv.model import BlurMap
+
+    m = photo_model()
+    live = LiveImage(m)
+    soft = m.blur.copy()
+    soft[:, 2] = soft[:, 2] * 3 + 1.0
+    steps = [replace(m, blur=soft),
+             replace(m, blur=soft, blur_map=BlurMap(cell=8, sigma=np.full((-(-m.height // 8), -(-m.width // 8)), 2.0,
+                                                                          np.float32))),
+             replace(m, curves=not m.curves)]
+    for new in steps:
+        before = live.image
+        st = live.update(new)
+        assert not st.regrouped and st.solved == 0
+        assert np.array_equal(live.image, render(new))
+        assert not np.array_equal(live.image, before)

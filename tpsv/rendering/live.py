@@ -7,8 +7,8 @@ need new colours. :class:`LiveImage` keeps a model together with everything
 derived from it (region map, ``(S, T)`` map, kernel set, solved device
 kernels, the rendered image) and brings them up to date for a new model:
 
-1. **Geometry.** When an outline, a patch or the draw order changed
-   (``deform``), the region map and the ``(S, T)`` map are recomputed; pixels
+1. **Geometry.** When an outline, a patch, the draw order or the way
+   outlines are drawn (``curves``) changed (``deform``), the region map and the ``(S, T)`` map are recomputed; pixels
    whose region or ``(S, T)`` changed are dirty. Otherwise both are kept.
 2. **Grouping.** When the features' regions and ``(S, T)``, the patches'
    pixel scales and the TPS parameters are unchanged (a colour edit:
@@ -34,7 +34,7 @@ kernels, the rendered image) and brings them up to date for a new model:
 5. **Borders.** The anti-aliased border pixels (:mod:`tpsv.rendering.borders`)
    are mixed into a copy of that frame after every update; where they are and
    their ``(S, T)`` across are found again, on the device, only when the
-   geometry changed.
+   geometry or the borders' edge widths changed.
 6. **Detail.** The detail layer (:mod:`tpsv.gpu.detail`) is added to every
    pixel of that copy; its texture is uploaded again only when it changed.
 
@@ -109,8 +109,11 @@ class UpdateStats:
 
 
 def same_geometry(a, b) -> bool:
-    """Whether two models have the same size, outlines, patches and draw order."""
+    """Whether two models have the same size, outlines, patches and draw order, their outlines drawn
+    the same way (as curves or as polygons)."""
     if (a.width, a.height) != (b.width, b.height) or len(a.regions) != len(b.regions):
+        return False
+    if bool(getattr(a, "curves", False)) != bool(getattr(b, "curves", False)):
         return False
     if draw_order(a) != draw_order(b):
         return False
@@ -123,6 +126,13 @@ def same_geometry(a, b) -> bool:
             if not np.array_equal(np.asarray(pa, np.float64), np.asarray(pb, np.float64)):
                 return False
     return True
+
+
+def same_edge_widths(a, b) -> bool:
+    """Whether two models' borders have the same edge widths (``blur`` and ``blur_map``): what the
+    anti-aliased border pixels read of a model besides its geometry."""
+    return (np.array_equal(np.asarray(a.blur, np.float64), np.asarray(b.blur, np.float64))
+            and a.blur_map == b.blur_map)
 
 
 def _same_tps_params(a, b) -> bool:
@@ -308,6 +318,11 @@ class LiveImage:
             self.W, self.H = W, H
             self._pm = pm
             self._mix = None
+        elif not same_edge_widths(self.model, model):
+            # the same maps, but the borders mix over other widths: drawn again from the new
+            # model (its polygons from the cache), their pixels found again
+            self._drawn = curves.as_drawn(model, W, H, cache=self._drawn_cache)
+            self._mix = None
         return recomputed, dirty
 
     def _update_grouping(self, model, full: bool):
@@ -420,4 +435,4 @@ class LiveImage:
         return stale, near
 
 
-__all__ = ["LiveImage", "UpdateStats", "same_geometry", "same_grouping", "kernel_keys"]
+__all__ = ["LiveImage", "UpdateStats", "same_edge_widths", "same_geometry", "same_grouping", "kernel_keys"]
