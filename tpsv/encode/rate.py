@@ -437,29 +437,40 @@ def encode_quality(
                            quality=q, reached=reached)
 
 
-#: Pictures of at most this many pixels, segmented automatically into regions of fewer than
-#: :data:`FEW_REGIONS_AREA` pixels on average, are also tried with fewer regions
-#: (:func:`fewer_regions`): there the outlines can weigh more than the texture. (Coffee at half
-#: size, 5500 px a region, was tried and kept its own: the try cost 2.5 s of its 4 s.)
-FEW_REGIONS_PIXELS = 1 << 17
-FEW_REGIONS_AREA = 4096
+#: Pictures of at most this many pixels (about 724 x 724), segmented automatically, are also tried
+#: with fewer regions (:func:`fewer_regions`): there the outlines and the false borders of a
+#: segmentation can weigh more than they buy. Until 2026-11-27 only pictures of at most 2^17
+#: pixels in regions of fewer than 4096 pixels on average were tried (small photos, where outlines
+#: weigh most); photos of 400-512 px gained as much: BD-PSNR over qualities 20-95 of the coarser
+#: regions against their own, rocket +1.07 dB (9 -> 3 regions: the sky's gradient cut by borders
+#: no edge explains), coffee +0.19, astronaut +0.16, chelsea 0.00 (the same 5), and photos the
+#: encoder never saw (scikit-image's, at 400 px unless named) retina +1.41, immunohistochemistry
+#: +1.40, coins (384 x 303) +1.19, camera (512 x 512) +0.36, hubble +0.26, astronaut +0.23,
+#: cat 0.00 (docs/DESIGN.md, "Automatic regions"). The try costs a second geometry and encoding
+#: (a 512 x 512 photo's ``vectorize`` 2.7-2.9 -> 4.8-4.9 s on 2 cores) where the coarser
+#: segmentation has fewer regions, a second segmentation (0.2-0.3 s) where it has not. At a
+#: megapixel (retina at 1024 x 1024, hubble at 1000 x 872) the coarser counts found the same
+#: regions: larger photos are not tried.
+FEW_REGIONS_PIXELS = 1 << 19
 #: How much lower (dB, at scale 1 and the default quality) the smaller file with fewer regions may read.
 FEW_REGIONS_DB = 0.1
 
 
 def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines: str = "fitted") -> Trials:
-    """``trials``, or, for a picture of at most :data:`FEW_REGIONS_PIXELS` pixels in regions of
-    fewer than :data:`FEW_REGIONS_AREA` on average, those of the same picture segmented into
-    fewer regions (:data:`tpsv.geometry.segment.FEW_COUNTS`) when at the default quality these make
-    the smaller file and read at most :data:`FEW_REGIONS_DB` lower.
+    """``trials``, or, for a picture of at most :data:`FEW_REGIONS_PIXELS` pixels, those of the same
+    picture segmented into fewer regions (:data:`tpsv.geometry.segment.FEW_COUNTS`) when at the
+    default quality these make the smaller file and read at most :data:`FEW_REGIONS_DB` lower.
 
     A small photo gets about as many regions as a large one, and its outlines then hold much of its
     file: chelsea area-downscaled 4x (112 x 75) took 9 regions, whose outline vertices were 1011
     of the 2640 bytes at quality 20. With 3-4 regions, BD-PSNR over qualities 20-95 rose by 3.3 dB
     (chelsea at a quarter), 4.6 dB (rocket at a quarter) and 2.6 dB (rocket at half size: 7159 ->
-    5358 bytes at quality 75, +0.09 dB; docs/DESIGN.md, "Automatic regions"). Where the regions
-    hold edges the texture cannot (coins' coins, drawn shapes) the coarser file reads lower and the
-    regions stay. One quality decides, so bytes and PSNR still rise with the quality.
+    5358 bytes at quality 75, +0.09 dB; docs/DESIGN.md, "Automatic regions"). At full size a
+    segmentation that cuts a gradient along borders no edge explains (rocket's sky: 9 regions, 3
+    with the fewer counts) pays for outlines and soft borders the texture then corrects: rocket
+    17392 -> 15561 bytes at quality 75, +0.08 dB. Where the regions hold edges the texture cannot
+    (coins' coins at a quarter, drawn shapes) the coarser file reads lower and the regions stay.
+    One quality decides, so bytes and PSNR still rise with the quality.
 
     Parameters
     ----------
@@ -472,7 +483,7 @@ def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines
     """
     rgb = trials.rgb
     pixels = rgb.shape[0] * rgb.shape[1]
-    if pixels > FEW_REGIONS_PIXELS or pixels >= FEW_REGIONS_AREA * len(trials.geometry.regions):
+    if pixels > FEW_REGIONS_PIXELS:
         return trials
     few = label_map(rgb, None, seed, counts=segment.FEW_COUNTS)
     if int(few.max()) + 1 >= len(trials.geometry.regions):
