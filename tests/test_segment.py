@@ -381,3 +381,55 @@ def test_a_photo_is_no_flat_drawing():
     page[50:62, 50:62] = np.clip(rng.normal(120, 20, (12, 12, 3)), 0, 255)
     small = flat_regions(page)
     assert small is not None and small.max() == 1 and len(np.unique(small[50:62, 50:62])) == 1
+
+
+def _border_length(labels):
+    return int((labels[1:] != labels[:-1]).sum() + (labels[:, 1:] != labels[:, :-1]).sum())
+
+
+def test_smooth_borders_straightens_a_border_that_follows_no_edge():
+    """Two regions of one noisy grey cut along a jagged line: the border comes out shorter, the regions
+    whole and about as large."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import smooth_borders
+
+    h, w = 64, 80
+    rng = np.random.default_rng(0)
+    rgb = np.clip(0.5 + rng.normal(0, 0.03, (h, w, 3)), 0, 1).astype(np.float32)
+    cut = 40 + rng.integers(-4, 5, size=h)  # a border that wanders 4 px each way, row by row
+    labels = (np.arange(w)[None, :] >= cut[:, None]).astype(np.int32)
+    out = smooth_borders(labels, lab_image(rgb, clip=True))
+    assert out.max() == 1 and _connected(out)
+    assert _border_length(out) < 0.6 * _border_length(labels)
+    assert abs(int((out == out[0, 0]).sum()) - int((labels == 0).sum())) < 0.05 * labels.size
+
+
+def test_smooth_borders_keeps_a_border_on_an_edge_and_thin_regions():
+    """A jagged border that is the image's own edge stays pixel for pixel; a region a blur would cut
+    apart (a line 2 px wide) is kept whole, the borders as they were."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import smooth_borders
+
+    h, w = 64, 80
+    rng = np.random.default_rng(1)
+    cut = 40 + rng.integers(-4, 5, size=h)
+    labels = (np.arange(w)[None, :] >= cut[:, None]).astype(np.int32)
+    rgb = np.where(labels[..., None] == 1, (0.9, 0.2, 0.1), (0.1, 0.3, 0.8)).astype(np.float32)
+    assert np.array_equal(smooth_borders(labels, lab_image(rgb, clip=True)), labels)
+
+    grey = np.full((h, w, 3), 0.5, np.float32)
+    line = np.zeros((h, w), np.int32)
+    line[:, 30:32] = 1
+    line[:, 32:] = 2
+    line[20:40, 31] = 2  # the line narrows to 1 px, where a 2 px blur would cut it
+    assert np.array_equal(smooth_borders(line, lab_image(grey, clip=True)), line)
+
+
+def test_smooth_borders_leaves_large_pictures_as_they_are(monkeypatch):
+    from tpsv.geometry import segment
+    from tpsv.geometry.bands import lab_image
+
+    rgb, _ = _synthetic(0)
+    labels = segment.split_connected((np.arange(rgb.shape[1])[None, :] // 40).repeat(rgb.shape[0], 0))
+    monkeypatch.setattr(segment, "SMOOTH_PIXELS", labels.size - 1)
+    assert segment.smooth_borders(labels, lab_image(rgb, clip=True)) is labels
