@@ -160,6 +160,21 @@ def test_a_small_photo_takes_fewer_regions_where_they_pay(monkeypatch):
     assert len(low.data) < len(fewer.data) and low.psnr < fewer.psnr
 
 
+def test_the_fewer_regions_try_beside_the_own_encoding_writes_the_same_file(monkeypatch):
+    """The picture's own encoding is made on a host thread while the coarser one is tried: the file is
+    the one a single core writes, one after the other."""
+    from tpsv.bench import baseline
+    from conftest import SAMPLES
+
+    rgb = cv2.imread(str(SAMPLES / "rocket.png"))[:, :, ::-1].astype(np.float32) / 255
+    small = baseline.downscale_area(rgb[:320, :480], 4)
+    monkeypatch.setattr(rate, "host_cores", lambda: 2)
+    beside = encode_quality(small, None)
+    monkeypatch.setattr(rate, "host_cores", lambda: 1)
+    alone = encode_quality(small, None)
+    assert beside.data == alone.data
+
+
 def test_drawn_shapes_keep_their_regions():
     """Where the regions hold edges the texture would blur (the edge table's shapes), the
     coarser segmentation reads lower or costs more, and the picture keeps its own."""

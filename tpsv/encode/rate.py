@@ -488,10 +488,20 @@ def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines
     few = label_map(rgb, None, seed, counts=segment.FEW_COUNTS)
     if int(few.max()) + 1 >= len(trials.geometry.regions):
         return trials
-    coarse = make_trials(image_geometry(rgb, few, seed, outlines))
-    if len(coarse.geometry.regions) >= len(trials.geometry.regions):
+    # the picture's own encoding at the default quality is made on a host thread beside the coarser
+    # geometry and its encoding (the same files: each is made as it would be alone)
+    own = host_pool("fewer", 1).submit(trials, DEFAULT_QUALITY) if host_cores() > 1 else None
+    try:
+        coarse = make_trials(image_geometry(rgb, few, seed, outlines))
+        fewer = len(coarse.geometry.regions) < len(trials.geometry.regions)
+        if fewer:
+            data_b, _, mse_b = coarse(DEFAULT_QUALITY)
+    finally:
+        if own is not None:
+            own.result()  # (kept by trials; an error there is raised here)
+    if not fewer:
         return trials
-    (data_a, _, mse_a), (data_b, _, mse_b) = trials(DEFAULT_QUALITY), coarse(DEFAULT_QUALITY)
+    data_a, _, mse_a = trials(DEFAULT_QUALITY)
     better = len(data_b) < len(data_a) and metrics.psnr_of_mse(mse_b) >= metrics.psnr_of_mse(mse_a) - FEW_REGIONS_DB
     return coarse if better else trials
 
