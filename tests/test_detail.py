@@ -155,9 +155,22 @@ def test_a_small_photo_takes_fewer_regions_where_they_pay(monkeypatch):
     monkeypatch.setattr(rate, "FEW_REGIONS_PIXELS", 0)
     own = encode_quality(small, None)
     assert len(fewer.model.regions) < len(own.model.regions)
-    assert len(fewer.data) < 0.8 * len(own.data) and fewer.psnr >= own.psnr - rate.FEW_REGIONS_DB
+    assert len(fewer.data) < 0.8 * len(own.data) and rate.fewer_pays(len(own.data), own.mse, len(fewer.data), fewer.mse)
     assert len(low.model.regions) == len(fewer.model.regions)
     assert len(low.data) < len(fewer.data) and low.psnr < fewer.psnr
+
+
+def test_fewer_regions_pay_by_the_bytes_they_save():
+    """A smaller file may read lower by FEW_REGIONS_SLOPE dB per halving; a larger one never pays."""
+    from tpsv.metrics import psnr_of_mse
+
+    mse = 1e-4
+    at = lambda db: mse / 10 ** (db / 10)  # the MSE of a picture ``db`` dB above
+    assert rate.fewer_pays(1000, mse, 500, at(-rate.FEW_REGIONS_SLOPE + 0.01))
+    assert not rate.fewer_pays(1000, mse, 500, at(-rate.FEW_REGIONS_SLOPE - 0.01))
+    assert rate.fewer_pays(1000, mse, 999, mse)
+    assert not rate.fewer_pays(1000, mse, 1000, at(3.0)) and not rate.fewer_pays(1000, mse, 1200, at(3.0))
+    assert psnr_of_mse(at(1.0)) > psnr_of_mse(mse)
 
 
 def test_the_fewer_regions_try_beside_the_own_encoding_writes_the_same_file(monkeypatch):

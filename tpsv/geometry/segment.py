@@ -964,9 +964,9 @@ def smooth_borders(labels: np.ndarray, lab: np.ndarray, sigmas=SMOOTH_SIGMAS) ->
     other region (docs/DESIGN.md, "Automatic regions").
 
     The first of ``sigmas`` that keeps every region, in one piece (:func:`split_connected`), is
-    taken; a thin region a wide blur would cut or swallow takes a narrower one, or none
-    (scikit-image's retina: its vessels at 4 and 3 px). Pictures of more than
-    :data:`SMOOTH_PIXELS` pixels are returned as they are.
+    taken; a thin region a wide blur would cut or swallow takes a narrower one, or none (a line
+    one pixel wide along a flat area). Pictures of more than :data:`SMOOTH_PIXELS` pixels are
+    returned as they are.
 
     Parameters
     ----------

@@ -8,8 +8,9 @@ derived from it (region map, ``(S, T)`` map, kernel set, solved device
 kernels, the rendered image) and brings them up to date for a new model:
 
 1. **Geometry.** When an outline, a patch, the draw order or the way
-   outlines are drawn (``curves``) changed (``deform``), the region map and the ``(S, T)`` map are recomputed; pixels
-   whose region or ``(S, T)`` changed are dirty. Otherwise both are kept.
+   outlines are drawn (``curves``) changed (``deform``), the region map and
+   the ``(S, T)`` map are recomputed; pixels whose region or ``(S, T)``
+   changed are dirty. Otherwise both are kept.
 2. **Grouping.** When the features' regions and ``(S, T)``, the patches'
    pixel scales and the TPS parameters are unchanged (a colour edit:
    ``recolor``; a translation), the grouping is unchanged too: the kernel
