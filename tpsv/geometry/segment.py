@@ -924,15 +924,14 @@ SMOOTH_PIXELS = 1 << 20
 EDGE_BORDER_STEP = 20.0
 
 
-def border_steps(labels: np.ndarray, lab: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The border pixels of ``labels`` (those with a 4-neighbour in another region) and, at each, the
-    mean over a Gaussian neighbourhood of ``sigma`` px of the border pixels' steps (the largest Lab
+def border_steps(labels: np.ndarray, lab: np.ndarray, sigma: float) -> np.ndarray:
+    """At each border pixel of ``labels`` (one with a 4-neighbour in another region), the mean over a
+    Gaussian neighbourhood of ``sigma`` px of the border pixels' steps (each the largest Lab
     difference to a neighbour across the border).
 
     Returns
     -------
-    border : ndarray (H, W) bool
-    step : ndarray (H, W) float32
+    ndarray (H, W) float32
         0 away from borders.
     """
     step = np.zeros(labels.shape, np.float32)
@@ -949,7 +948,7 @@ def border_steps(labels: np.ndarray, lab: np.ndarray, sigma: float) -> tuple[np.
             border[side] |= cut
     num = cv2.GaussianBlur(step, (0, 0), sigma)
     den = cv2.GaussianBlur(border.astype(np.float32), (0, 0), sigma)
-    return border, np.where(border, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+    return np.where(border, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
 
 
 def smooth_borders(labels: np.ndarray, lab: np.ndarray, sigmas=SMOOTH_SIGMAS) -> np.ndarray:
@@ -986,7 +985,7 @@ def smooth_borders(labels: np.ndarray, lab: np.ndarray, sigmas=SMOOTH_SIGMAS) ->
         return labels
     masks = [(labels == k).astype(np.float32) for k in range(n)]
     for sigma in sigmas:
-        border, step = border_steps(labels, lab, sigma)
+        step = border_steps(labels, lab, sigma)
         reach = 2 * int(np.ceil(2 * sigma)) + 1
         keep = cv2.dilate((step >= EDGE_BORDER_STEP).astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0
         out = np.zeros(labels.shape, np.int32)
