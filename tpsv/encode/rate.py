@@ -325,14 +325,21 @@ class Trials:
 DETAIL_MIN_SLOPE = 1.0
 
 
+def worth_its_bytes(ref_mse: float, ref_bytes: int, mse: float, nbytes: int, slope: float) -> bool:
+    """Whether an encoding of ``nbytes`` bytes at ``mse`` (scale 1) is the better trade against one
+    of ``ref_bytes`` at ``ref_mse``: its PSNR at least ``slope`` dB higher per doubling of the
+    bytes (a smaller file: at most ``slope`` dB lower per halving). Against an exact reference
+    (MSE 0) nothing is."""
+    gain = metrics.psnr_of_mse(mse) - metrics.psnr_of_mse(ref_mse)
+    return bool(gain >= slope * np.log2(max(nbytes, 1) / max(ref_bytes, 1)))
+
+
 def detail_pays(base_mse: float, mse: float, base_bytes: int, nbytes: int) -> bool:
     """Whether a detail layer that takes the file from ``base_bytes`` to ``nbytes`` and the error
     from ``base_mse`` to ``mse`` (scale 1) is worth its bytes: at least :data:`DETAIL_MIN_SLOPE`
-    dB per doubling of the file. A picture the base already draws exactly (MSE 0) needs none."""
-    if base_mse <= 0.0:
-        return False
-    gain = 10.0 * np.log10(base_mse / max(mse, 1e-300))
-    return bool(gain >= DETAIL_MIN_SLOPE * np.log2(max(nbytes, 1) / max(base_bytes, 1)))
+    dB per doubling of the file (:func:`worth_its_bytes`). A picture the base already draws
+    exactly (MSE 0) needs none."""
+    return worth_its_bytes(base_mse, base_bytes, mse, nbytes, DETAIL_MIN_SLOPE)
 
 
 def _stamped(model, quality: int):
@@ -511,11 +518,9 @@ def fewer_regions(trials: Trials, make_trials: Callable, seed: int = 0, outlines
 
 def fewer_pays(own_bytes: int, own_mse: float, fewer_bytes: int, fewer_mse: float) -> bool:
     """Whether the encoding with fewer regions is the better one: a smaller file that reads at most
-    :data:`FEW_REGIONS_SLOPE` dB lower per halving of the file (scale 1, the default quality)."""
-    if fewer_bytes >= own_bytes:
-        return False
-    drop = metrics.psnr_of_mse(own_mse) - metrics.psnr_of_mse(fewer_mse)
-    return bool(drop <= FEW_REGIONS_SLOPE * np.log2(own_bytes / fewer_bytes))
+    :data:`FEW_REGIONS_SLOPE` dB lower per halving of the file (scale 1, the default quality;
+    :func:`worth_its_bytes`)."""
+    return fewer_bytes < own_bytes and worth_its_bytes(own_mse, own_bytes, fewer_mse, fewer_bytes, FEW_REGIONS_SLOPE)
 
 
 #: Most encodings a search for a target PSNR or size tries (bisection of 1..100, after the ends).

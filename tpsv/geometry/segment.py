@@ -936,11 +936,7 @@ def border_steps(labels: np.ndarray, lab: np.ndarray, sigma: float) -> np.ndarra
     """
     step = np.zeros(labels.shape, np.float32)
     border = np.zeros(labels.shape, bool)
-    for axis in (0, 1):
-        a = [slice(None), slice(None)]
-        b = [slice(None), slice(None)]
-        a[axis], b[axis] = slice(1, None), slice(None, -1)
-        a, b = tuple(a), tuple(b)
+    for a, b in ((np.s_[:, 1:], np.s_[:, :-1]), (np.s_[1:, :], np.s_[:-1, :])):
         cut = labels[a] != labels[b]
         d = np.where(cut, np.sqrt(((lab[a] - lab[b]) ** 2).sum(axis=2)), 0.0).astype(np.float32)
         for side in (a, b):
