@@ -205,3 +205,45 @@ def test_a_staircase_keeps_its_cuts():
     stairs = np.array([[0.0, 0.5], [0.0, 1.5], [0.0, 2.5], [0.5, 3.0], [1.5, 3.0], [2.0, 3.5], [2.0, 4.5],
                        [2.0, 5.5], [6.0, 5.5], [6.0, 0.5]])
     assert subpixel._caps(stairs, np.zeros(len(stairs)), subpixel.TOLERANCE) == []
+
+
+def _wave(noise: float, seed: int = 0):
+    """Two regions of 64 x 64 split by the wave ``y = 32 + 6 sin(2 pi x / 40)``, anti-aliased (4 x 4
+    supersampled), with Gaussian noise of ``noise`` (sRGB) on both sides; its label map."""
+    yy, xx = (np.mgrid[0:256, 0:256] + 0.5) / 4.0
+    below = (yy >= 32.0 + 6.0 * np.sin(2 * np.pi * xx / 40.0)).astype(np.float64)
+    cover = below.reshape(64, 4, 64, 4).mean(axis=(1, 3))
+    rgb = cover[..., None] * np.array([0.8, 0.3, 0.2]) + (1 - cover[..., None]) * np.array([0.2, 0.4, 0.7])
+    rgb = rgb + np.random.default_rng(seed).normal(0.0, noise, rgb.shape)
+    return (cover >= 0.5).astype(np.int32), np.clip(rgb, 0.0, 1.0).astype(np.float32)
+
+
+def test_a_textured_border_is_fitted_with_fewer_vertices_and_a_clean_one_keeps_its_own(monkeypatch):
+    """Texture on a border's sides raises its tolerance to the reading's own uncertainty (the
+    sides' spread relative to the contrast, at most TEXTURED_TOLERANCE): the noisy wave's border
+    keeps fewer vertices, still on the wave, while the clean wave's border is the same."""
+    def border(noise, floor):
+        monkeypatch.setattr(subpixel, "TEXTURED_TOLERANCE", floor)
+        labels, rgb = _wave(noise)
+        regions, _ = build_regions(labels, rgb=rgb)
+        p = [r for r in regions if r.label == 1][0].outline[0]
+        return p[(p[:, 0] > 0) & (p[:, 0] < 64) & (p[:, 1] < 63)]  # the wave, not the frame
+
+    floor = subpixel.TEXTURED_TOLERANCE
+    clean = border(0.0, 0.0)
+    assert np.array_equal(border(0.0, floor), clean)
+    tight, loose = border(0.06, 0.0), border(0.06, floor)
+    assert len(loose) < 0.8 * len(tight), (len(loose), len(tight))
+    off = loose[:, 1] - (32.0 + 6.0 * np.sin(2 * np.pi * loose[:, 0] / 40.0))
+    assert np.abs(off).max() < 0.35, off
+
+
+def test_the_reading_s_grain_is_the_sides_spread_relative_to_the_contrast():
+    """near_grain: about 0 along a clean border, about the noise's spread over the contrast along a
+    noisy one, and 1e9 away from any border."""
+    for noise, lo, hi in ((0.0, 0.0, 0.01), (0.06, 0.07, 0.3)):
+        labels, rgb = _wave(noise)
+        reading = subpixel.BorderReading(labels, rgb)
+        on = reading.across >= 0
+        assert lo <= np.median(reading.near_grain[on]) <= hi, np.median(reading.near_grain[on])
+        assert reading.near_grain[0, 0] == np.float32(1e9)
