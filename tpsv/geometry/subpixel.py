@@ -88,7 +88,7 @@ TOLERANCE = 0.03
 #: (:attr:`BorderReading.near_grain`: 0.004-0.03 along the edge table's shapes, 0.06-0.14 at the
 #: median on the samples), up to this: a curve held within :data:`TOLERANCE` of a photo's smoothed
 #: contour followed the texture's noise with vertices that bought nothing. Quality 75, before -> after:
-#: the samples' files 0.4-1.8 % smaller, BD-PSNR over qualities 20-95 +0.06..+0.14 dB with their label
+#: the samples' files 0.3-2.1 % smaller, BD-PSNR over qualities 20-95 +0.06..+0.14 dB with their label
 #: maps or without, coins and cat (never seen) +0.25 and +0.27; area-downscaled 2x and 4x, vectorised
 #: and rendered back, -0.05..+0.04 dB for -6..+2 % bytes; the edge table the same (docs/DESIGN.md,
 #: "Automatic regions"). A flat 0.1 px on every border not between flat colours lost 0.8-1.9 dB there.
