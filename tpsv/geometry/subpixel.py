@@ -332,10 +332,11 @@ def _read(comp, border, rgb, ys, xs, own, across):
     # a side whose colour varies (texture) is a poor reference: trust fades out as its
     # spread goes from a quarter to a half of the contrast
     contrast = np.sqrt(dd)
-    texture = np.clip(2.0 - 4.0 * (sd_a + sd_b) / np.maximum(contrast, 1e-12), 0.0, 1.0)
     spread = sd_a + sd_b
+    ratio = spread / np.maximum(contrast, 1e-12)
+    texture = np.clip(2.0 - 4.0 * ratio, 0.0, 1.0)
     # a side seen only at its mixed pixels (a line one or two pixels wide) spreads by the mix, not by texture
-    grain = np.where(inner, spread / np.maximum(contrast, 1e-12), 0.0)
+    grain = np.where(inner, ratio, 0.0)
     return a, normal, np.clip(contrast / CONTRAST - 1.0, 0.0, 1.0) * texture, spread, grain
 
 
@@ -419,7 +420,7 @@ class BorderReading:
         clean[ys, xs] = (trust >= 1.0) & (spread <= CLEAN_SPREAD)
         self.near_clean = _min3(clean | ~border) & _max3(clean)
         self.near_grain[ys, xs] = grain
-        self.near_grain = _least3(self.near_grain)
+        self.near_grain = _min3(self.near_grain)
         two = np.flatnonzero((second >= 0) & (a >= 1.0 - SATURATED))
         if two.size:
             self._read_second(comp, border, rgb, ys[two], xs[two], own[two], second[two])
@@ -536,18 +537,13 @@ def _max3(a: np.ndarray) -> np.ndarray:
     return cv2.dilate(a, _SQUARE)
 
 
-def _least3(a: np.ndarray) -> np.ndarray:
-    """``scipy.ndimage.minimum_filter(a, size=3)`` of a float32 array (as :func:`_max3`)."""
-    import cv2
-
-    return cv2.erode(a, _SQUARE)
-
-
 def _min3(a: np.ndarray) -> np.ndarray:
-    """``scipy.ndimage.minimum_filter(a, size=3)`` of a bool array (as :func:`_max3`)."""
+    """``scipy.ndimage.minimum_filter(a, size=3)`` (float or bool) by OpenCV's erosion (as :func:`_max3`)."""
     import cv2
 
-    return cv2.erode(np.ascontiguousarray(a).view(np.uint8), _SQUARE).view(bool)
+    if a.dtype == bool:
+        return cv2.erode(np.ascontiguousarray(a).view(np.uint8), _SQUARE).view(bool)
+    return cv2.erode(a, _SQUARE)
 
 
 def _grow(mask: np.ndarray) -> np.ndarray:
