@@ -220,12 +220,16 @@ def test_segment_bad_inputs(tmp_path, small_png, small_rgb):
     assert not out.exists()
 
 
-def test_render_antialias_switch(tmp_path, tpsv_file):
+def test_render_antialias_switch(tmp_path, small_rgb, small_labels):
     """--no-antialias gives one region per pixel: the library's render(antialias=False), byte for byte."""
     from tpsv import codec
+    from tpsv.encode.rate import encode_quality
     from tpsv.image import encode_png
     from tpsv.rendering.raster import render
 
+    # two regions: a border to mix (the small photo segmented automatically is one region)
+    tpsv_file = tmp_path / "two.tpsv"
+    tpsv_file.write_bytes(encode_quality(small_rgb, small_labels).data)
     model = codec.load(tpsv_file)
     for flag, aa in (("--antialias", True), ("--no-antialias", False)):
         out = tmp_path / f"{flag}.png"

@@ -1,5 +1,6 @@
 """Label maps: connectivity clean-up, automatic and stroke segmentation."""
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
@@ -180,6 +181,55 @@ def test_regions_the_image_shows_no_edge_between_are_joined():
     assert out.max() == 1
     assert len(np.unique(out[labels != 2])) == 1 and len(np.unique(out[labels == 2])) == 1
     assert out[0, 0] != out[15, 45]
+
+
+@pytest.mark.parametrize("name", ["chelsea", "rocket"])
+def test_segment_auto_joins_regions_no_edge_divides(name, monkeypatch):
+    """A photo's merged regions that meet where the image steps by less than WEAK_BORDER (fur, a
+    sky) become one; every border left is an edge; a count asked for is kept."""
+    from conftest import small_sample
+    from tpsv.geometry import segment
+    from tpsv.geometry.bands import lab_image
+
+    rgb = small_sample(name, 128)
+    joined = segment_auto(rgb)
+    m = int(joined.max()) + 1
+    a, b, step = segment.wide_steps(joined, lab_image(rgb, clip=True))
+    key = np.minimum(a, b) * m + np.maximum(a, b)
+    for k in np.unique(key):
+        steps = np.sort(step[key == k])
+        assert steps.size < 8 or steps[len(steps) // 2] >= segment.WEAK_BORDER
+    assert _connected(joined)
+    assert 4 <= segment_auto(rgb, n_regions=5).max() + 1 <= 6
+    monkeypatch.setattr(segment, "WEAK_BORDER", 0.0)
+    assert segment_auto(rgb).max() + 1 > m
+
+
+def test_join_weak_borders_joins_a_ramp_and_keeps_a_soft_edged_square():
+    """A ramp cut in three with a square of another colour on it, its edge blurred over a few
+    pixels (a pair of pixels steps by less than the limit, the picture across by more)."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import WEAK_BORDER, join_weak_borders, wide_steps
+
+    h, w = 48, 72
+    xx = np.mgrid[:h, :w][1] / (w - 1.0)
+    rgb = np.stack([0.2 + 0.6 * xx, 0.5 - 0.3 * xx, 0.4 + 0 * xx], -1).astype(np.float32)
+    square = np.zeros((h, w), np.float32)
+    square[14:34, 40:60] = 1
+    soft = cv2.GaussianBlur(square, (0, 0), 2.5)[..., None]
+    rgb = (1 - soft) * rgb + soft * np.array([0.9, 0.9, 0.1], np.float32)
+    labels = (np.arange(w)[None, :] // 24).repeat(h, 0).astype(np.int32)
+    labels[square > 0] = 3
+    lab = lab_image(rgb, clip=True)
+    out = join_weak_borders(labels, lab)
+    assert out.max() == 1
+    assert len(np.unique(out[labels != 3])) == 1 and len(np.unique(out[labels == 3])) == 1
+    # the square's edge: soft pixel to pixel, an edge across
+    a, b, step = wide_steps(labels, lab)
+    edge = (a == 3) | (b == 3)
+    pixel_steps = np.sqrt((np.diff(lab[24, 30:50], axis=0) ** 2).sum(axis=1))
+    assert pixel_steps.max() < WEAK_BORDER < np.median(step[edge])
+    assert np.array_equal(join_weak_borders(labels, lab, 0.0), labels)
 
 
 def _strokes(h=96, w=128):
