@@ -232,6 +232,23 @@ def test_join_weak_borders_joins_a_ramp_and_keeps_a_soft_edged_square():
     assert np.array_equal(join_weak_borders(labels, lab, 0.0), labels)
 
 
+def test_join_weak_borders_reads_a_joined_border_again():
+    """Two regions an edge divides (A and B, above) and a third below both, of their colours (C):
+    C meets each softly. Joined at once on the first medians all three would be one; A joined
+    to C first, that region's border with B is mostly the edge, and B stays apart."""
+    from tpsv.geometry.bands import lab_image
+    from tpsv.geometry.segment import join_weak_borders
+
+    h, w = 80, 72
+    rgb = np.full((h, w, 3), 0.2, np.float32)
+    rgb[:, w // 2:] = 0.8
+    labels = np.where(np.arange(w)[None, :] < w // 2, 0, 1).repeat(h, 0).astype(np.int32)
+    labels[h // 2:] = 2
+    out = join_weak_borders(labels, lab_image(rgb, clip=True))
+    assert out.max() == 1
+    assert out[0, 0] != out[0, -1]
+
+
 def _strokes(h=96, w=128):
     s = np.zeros((h, w, 3), np.uint8)
     s[10:12, 80:110] = (0, 0, 255)  # sky
