@@ -679,6 +679,19 @@ def test_smooth_fills_are_told_from_texture():
     assert smooth_fills(two, flat, index).tolist() == [True, False]
 
 
+def test_a_large_region_is_never_a_smooth_fill(monkeypatch):
+    """The fine lattice costs in proportion to the area: past SMOOTH_FILL_MAX_PX the texture keeps it."""
+    from tpsv.encode import rate
+
+    ramp = _ramp()
+    index = np.zeros(ramp.shape[:2], np.int32)
+    flat = np.broadcast_to(ramp.mean((0, 1)), ramp.shape)
+    monkeypatch.setattr(rate, "SMOOTH_FILL_MAX_PX", ramp.shape[0] * ramp.shape[1])
+    assert smooth_fills(ramp, flat, index).tolist() == [True]
+    monkeypatch.setattr(rate, "SMOOTH_FILL_MAX_PX", ramp.shape[0] * ramp.shape[1] - 1)
+    assert smooth_fills(ramp, flat, index).tolist() == [False]
+
+
 def test_a_gradient_fill_gets_a_finer_base_and_comes_back_smooth(monkeypatch):
     """A ramp the coarsest lattice cannot follow is carried by the vector base, not by the texture:
     more base features, a closer base, and at 4x no blotches (the render stays monotonic along

@@ -934,11 +934,11 @@ WEAK_BORDER = 25.0
 #: step, a texture's grain is averaged away.
 WIDE_SIGMA = 1.0
 WIDE_REACH = 2
-#: Pictures of more pixels keep such borders: measured up to 512 x 512 (BD-PSNR +0.10..+0.97 dB on
-#: the photos that changed, up to +7 on small pictures); at a megapixel retina lost 0.58 dB (its
-#: joined fundus became one smooth fill, whose fine lattice cost more than the borders saved) and
-#: hubble gained 0.13 (docs/DESIGN.md, "Weak borders joined").
-JOIN_PIXELS = 1 << 19
+#: Pictures of more pixels keep such borders, as they keep those :func:`smooth_borders` would
+#: smooth (:data:`SMOOTH_PIXELS`): measured up to a megapixel (BD-PSNR +0.10..+0.97 dB on the 512 px
+#: photos that changed, up to +7 on small pictures; at 1024 x 1024 retina +0.66, hubble at 1000 x
+#: 872 +0.13), not beyond (docs/DESIGN.md, "Weak borders joined").
+JOIN_PIXELS = 1 << 20
 
 
 def wide_steps(labels: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
