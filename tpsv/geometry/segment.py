@@ -863,13 +863,12 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0, c
     residual and cost a region).
 
     Last, the borders are smoothed where they follow no edge (:func:`smooth_borders`)
-    and, when no ``n_regions`` is asked for and the picture has at most
-    :data:`JOIN_PIXELS` pixels, neighbours whose shared border steps by less than
-    :data:`WEAK_BORDER` are joined (:func:`join_weak_borders`): the count may then fall
-    below ``counts`` (a photo with no strong edge is one region). Merged superpixels
-    of a photo often meet inside a texture of slowly changing colour, where a border
-    buys nothing the detail layer would not draw and costs its outline, control grid
-    and lattice of features.
+    and, when no ``n_regions`` is asked for, neighbours whose shared border steps by
+    less than :data:`WEAK_BORDER` are joined (:func:`join_weak_borders`): the count
+    may then fall below ``counts`` (a photo with no strong edge is one region).
+    Merged superpixels of a photo often meet inside a texture of slowly changing
+    colour, where a border buys nothing the detail layer would not draw and costs its
+    outline, control grid and lattice of features.
 
     Deterministic for a given ``seed`` (SLIC itself is deterministic; the seed
     only breaks exact cost ties).
@@ -919,9 +918,7 @@ def segment_auto(rgb: np.ndarray, n_regions: int | None = None, seed: int = 0, c
         if flat_score <= min(ward_score, steps_score):
             return flat
     labels = smooth_borders(steps if steps_score <= FILL_GAIN * ward_score else ward, lab)
-    if n_regions is not None or labels.size > JOIN_PIXELS:
-        return labels
-    return join_weak_borders(labels, lab)
+    return labels if n_regions is not None else join_weak_borders(labels, lab)
 
 
 #: Regions of a photo whose shared border steps by less than this (Lab units, the median over its
@@ -934,11 +931,6 @@ WEAK_BORDER = 25.0
 #: step, a texture's grain is averaged away.
 WIDE_SIGMA = 1.0
 WIDE_REACH = 2
-#: Pictures of more pixels keep such borders, as they keep those :func:`smooth_borders` would
-#: smooth (:data:`SMOOTH_PIXELS`): measured up to a megapixel (BD-PSNR +0.10..+0.97 dB on the 512 px
-#: photos that changed, up to +7 on small pictures; at 1024 x 1024 retina +0.66, hubble at 1000 x
-#: 872 +0.13), not beyond (docs/DESIGN.md, "Weak borders joined").
-JOIN_PIXELS = 1 << 20
 
 
 def wide_steps(labels: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
