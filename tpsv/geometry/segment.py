@@ -489,6 +489,15 @@ def _edge_stop(history, snapshots: dict, default: list[int], counts=AUTO_COUNTS)
 SEAMLESS = 3.0
 
 
+def _border_medians(key: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per border (``key`` of its pixel pairs, as :func:`_border_pairs` makes them): the keys in
+    increasing order, the pairs each has, and the upper median of its pairs' ``step``."""
+    order = np.lexsort((step, key))
+    key, step = key[order], step[order]
+    pairs, first, count = np.unique(key, return_index=True, return_counts=True)
+    return pairs, count, step[first + count // 2]
+
+
 def _join_seamless(labels: np.ndarray, lab: np.ndarray) -> np.ndarray:
     """``labels`` with neighbours joined where the image shows no edge between them.
 
@@ -498,11 +507,8 @@ def _join_seamless(labels: np.ndarray, lab: np.ndarray) -> np.ndarray:
     the edge table's first 8 variants. Here the median step is read.
     """
     m = int(labels.max()) + 1
-    key, step2 = _border_pairs(labels, m, lab)
-    order = np.lexsort((step2, key))
-    key, step2 = key[order], step2[order]
-    pairs, first, count = np.unique(key, return_index=True, return_counts=True)
-    median = np.sqrt(step2[first + count // 2])
+    pairs, count, median2 = _border_medians(*_border_pairs(labels, m, lab))
+    median = np.sqrt(median2)
     parent = list(range(m))
     for k in pairs[(median < SEAMLESS) & (count >= 8)]:
         a, b = _root(parent, int(k // m)), _root(parent, int(k % m))
@@ -991,12 +997,8 @@ def join_weak_borders(labels: np.ndarray, lab: np.ndarray, limit: float | None =
     while True:
         ra, rb = root[a], root[b]
         cut = ra != rb
-        key = np.minimum(ra, rb)[cut] * n + np.maximum(ra, rb)[cut]
-        s = step[cut]
-        order = np.lexsort((s, key))
-        key, s = key[order], s[order]
-        pairs, first, count = np.unique(key, return_index=True, return_counts=True)
-        median = np.where(count >= 8, s[first + count // 2], np.inf)
+        pairs, count, median = _border_medians(np.minimum(ra, rb)[cut] * n + np.maximum(ra, rb)[cut], step[cut])
+        median = np.where(count >= 8, median, np.inf)
         if not median.size or median.min() >= limit:
             break
         k = int(pairs[np.argmin(median)])
